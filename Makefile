@@ -1,0 +1,23 @@
+# Two commands do all set-up on a fresh machine:
+#   make demo   - train MLP / CfC / SDE-LNN on the built-in synthetic scene, write a report
+#   make test   - the whole test suite (what .ci/run calls)
+PY ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+
+.PHONY: demo test lint setup
+
+$(BIN)/liquidgs: pyproject.toml
+	bash scripts/setup.sh $(VENV) $(PY)
+
+setup: $(BIN)/liquidgs
+
+demo: $(BIN)/liquidgs
+	$(BIN)/liquidgs demo --out report
+
+test: $(BIN)/liquidgs
+	$(BIN)/ruff check src tests
+	$(BIN)/python -m pytest -q tests
+
+lint: $(BIN)/liquidgs
+	$(BIN)/ruff check src tests

@@ -1,0 +1,26 @@
+"""The canonical Gaussian scene model: parameters, initialisation and PLY I/O."""
+
+from liquidgs.gaussians.model import (
+    PARAM_KEYS,
+    activate,
+    init_from_points,
+    init_random_box,
+    num_sh_bases,
+    rgb_to_sh0,
+    sh0_to_rgb,
+)
+from liquidgs.gaussians.neighbors import mean_sq_dist_to_neighbors
+from liquidgs.gaussians.ply import read_ply, write_ply
+
+__all__ = [
+    "PARAM_KEYS",
+    "activate",
+    "init_from_points",
+    "init_random_box",
+    "mean_sq_dist_to_neighbors",
+    "num_sh_bases",
+    "read_ply",
+    "rgb_to_sh0",
+    "sh0_to_rgb",
+    "write_ply",
+]
