@@ -12,8 +12,13 @@ import sys
 from liquidgs.errors import LiquidGSError
 
 COMMANDS: dict[str, tuple[str, str]] = {
+    "demo": ("liquidgs.commands.demo", "synthetic scene -> train MLP, CfC, SDE-LNN -> report"),
+    "train": ("liquidgs.commands.train", "train a dynamic scene with a deformation field"),
+    "eval": ("liquidgs.commands.evaluate", "re-evaluate a finished run"),
+    "render": ("liquidgs.commands.render", "test renders, depth, time sweep, orbit video"),
+    "export": ("liquidgs.commands.export", "canonical PLY, PLY at a time, PLY sequence"),
     "data": ("liquidgs.commands.data", "generate synthetic scenes, validate dataset folders"),
-    "bench": ("liquidgs.commands.bench", "benchmarks that print JSON"),
+    "bench": ("liquidgs.commands.bench", "benchmarks that print JSON (raster, fields)"),
 }
 
 

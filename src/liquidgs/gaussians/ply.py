@@ -6,14 +6,13 @@ as a logit, scales as logs, rotation wxyz and f_rest channel-major (all of R, th
 
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 import torch
-from plyfile import PlyData, PlyElement
+from plyfile import PlyData, PlyElement, PlyParseError
 
+from liquidgs.atomic import write_atomic
 from liquidgs.errors import DataError
 
 
@@ -45,16 +44,8 @@ def write_ply(path: str | Path, params: dict[str, torch.Tensor]) -> Path:
     vertex = np.empty(n, dtype=[(name, "<f4") for name in names])
     for i, name in enumerate(names):
         vertex[name] = data[:, i]
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    os.close(fd)
-    try:
-        PlyData([PlyElement.describe(vertex, "vertex")], byte_order="<").write(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
+    ply = PlyData([PlyElement.describe(vertex, "vertex")], byte_order="<")
+    return write_atomic(path, lambda tmp: ply.write(str(tmp)))
 
 
 def read_ply(path: str | Path, device: str | torch.device = "cpu") -> dict[str, torch.Tensor]:
@@ -62,7 +53,7 @@ def read_ply(path: str | Path, device: str | torch.device = "cpu") -> dict[str, 
     path = Path(path)
     try:
         vertex = PlyData.read(str(path))["vertex"]
-    except (OSError, ValueError, KeyError) as err:
+    except (OSError, ValueError, KeyError, PlyParseError) as err:
         raise DataError(path, f"not a readable 3DGS PLY ({err})") from None
     props = {p.name for p in vertex.properties}
     required = ["x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity"]

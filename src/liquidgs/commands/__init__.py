@@ -1,0 +1,1 @@
+"""Thin commands of the `liquidgs` CLI; each module exposes main(argv) -> int."""

@@ -1,0 +1,18 @@
+"""`liquidgs bench {raster,fields}`: benchmarks that print one JSON object per case."""
+
+from __future__ import annotations
+
+import importlib
+import sys
+
+BENCHMARKS = {
+    "raster": "liquidgs.render.benchmark",
+    "fields": "liquidgs.fields.benchmark",
+}
+
+
+def main(argv: list[str]) -> int:
+    if not argv or argv[0] not in BENCHMARKS:
+        print(f"usage: liquidgs bench {{{','.join(BENCHMARKS)}}} [--json] [options]", file=sys.stderr)
+        return 0 if argv and argv[0] in ("-h", "--help") else 2
+    return int(importlib.import_module(BENCHMARKS[argv[0]]).main(argv[1:]) or 0)

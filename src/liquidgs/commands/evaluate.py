@@ -1,0 +1,100 @@
+"""`liquidgs eval --run DIR`: re-evaluate a finished run's final checkpoint on its test split.
+
+Writes DIR/eval.json (summary, labelled as a re-evaluation of the final checkpoint) and
+DIR/eval_per_view.json; results.json, the training record, is left as it was.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+import torch
+import tyro
+from rich.console import Console
+
+from liquidgs.atomic import write_json_atomic
+from liquidgs.data import load_dataset
+from liquidgs.eval import LPIPS, LPIPSUnavailable, evaluate_views
+from liquidgs.train.model import render_frame
+from liquidgs.train.run import load_run
+from liquidgs.train.trainer import data_config
+
+
+@dataclass
+class EvalArgs:
+    run: Path
+    """Run folder written by `liquidgs train`."""
+    split: Literal["test", "val", "train"] = "test"
+    lpips_backbone: Literal["vgg", "alex", "squeeze"] | None = None
+    """Default: the backbone the run was trained with."""
+    lpips_normalize: bool | None = None
+    lpips_weights: Path | None = None
+    quantize_8bit: bool | None = None
+    device: str = "auto"
+
+
+def evaluate_run(args: EvalArgs) -> dict:
+    run = load_run(args.run, args.device)
+    cfg = run.config
+    backbone = args.lpips_backbone or cfg.eval.lpips_backbone
+    normalize = cfg.eval.lpips_normalize if args.lpips_normalize is None else args.lpips_normalize
+    quantize = cfg.eval.quantize_8bit if args.quantize_8bit is None else args.quantize_8bit
+    dataset = load_dataset(data_config(cfg))
+    if args.split not in dataset.splits:
+        from liquidgs.errors import ConfigError
+
+        raise ConfigError(f"{cfg.data}: the dataset has no '{args.split}' split")
+    try:
+        lpips, lpips_error = (
+            LPIPS(
+                backbone,
+                normalize=normalize,
+                weights=args.lpips_weights or cfg.eval.lpips_weights,
+                device=run.device,
+            ),
+            None,
+        )
+    except LPIPSUnavailable as err:
+        lpips, lpips_error = None, str(err)
+    background = torch.tensor(dataset.background, dtype=torch.float32)
+
+    def render(frame):
+        return render_frame(
+            run.at_time(frame.time),
+            frame.viewmat,
+            frame.K,
+            frame.width,
+            frame.height,
+            sh_degree=run.sh_degree,
+            background=background,
+            backend=cfg.backend,
+        ).rgb
+
+    summary, per_view = evaluate_views(
+        render, dataset.splits[args.split], lpips=lpips, lpips_error=lpips_error, quantize=quantize
+    )
+    record = {
+        "kind": "re-evaluation of the final checkpoint",
+        "iteration": run.iteration,
+        "split": args.split,
+        "field": cfg.field,
+        "scene": dataset.scene_name,
+        **summary,
+    }
+    write_json_atomic(args.run / "eval.json", record)
+    write_json_atomic(args.run / "eval_per_view.json", {"iteration": run.iteration, "views": per_view})
+    return record
+
+
+def main(argv: list[str]) -> int:
+    args = tyro.cli(EvalArgs, args=argv, prog="liquidgs eval", description=__doc__)
+    record = evaluate_run(args)
+    lp = record.get("lpips")
+    Console().print(
+        f"{record['scene']} / {record['field']} @ {record['iteration']} ({record['split']}): "
+        f"PSNR {record['psnr']:.2f}  SSIM {record['ssim']:.4f}  LPIPS {lp if lp is None else round(lp, 4)} "
+        f"-> {args.run / 'eval.json'}"
+    )
+    return 0

@@ -1,0 +1,18 @@
+"""Dynamic-scene datasets: D-NeRF and Nerfies-family readers, validation, synthetic scenes."""
+
+from liquidgs.data.loading import CheckReport, check_dataset, detect_format, load_dataset
+from liquidgs.data.scene import DataConfig, Frame, SceneDataset
+from liquidgs.data.synthetic import DEFAULT_SYNTHETIC_SCENE, SYNTHETIC_SCENES, generate_synthetic
+
+__all__ = [
+    "DEFAULT_SYNTHETIC_SCENE",
+    "SYNTHETIC_SCENES",
+    "CheckReport",
+    "DataConfig",
+    "Frame",
+    "SceneDataset",
+    "check_dataset",
+    "detect_format",
+    "generate_synthetic",
+    "load_dataset",
+]

@@ -1,0 +1,121 @@
+"""The dataset types the trainer consumes: DataConfig, Frame and SceneDataset."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+import torch
+
+from liquidgs.data.images import ImageLoader
+from liquidgs.errors import ConfigError
+
+BACKGROUNDS = {"black": (0.0, 0.0, 0.0), "white": (1.0, 1.0, 1.0)}
+
+# Nerfies-family split presets: which ids are train/test and which rgb/<k>x folder to read.
+# They reproduce the reference's choices, which it makes from the parent folder's name.
+NERFIES_PRESETS = {"nerfds": 1, "vrig": 4, "interp": 2}
+
+
+@dataclass
+class DataConfig:
+    """Where and how to read a dynamic scene."""
+
+    path: Path
+    """Scene folder (D-NeRF: transforms_*.json; Nerfies/NeRF-DS/HyperNeRF: dataset.json)."""
+    format: Literal["auto", "dnerf", "nerfies"] = "auto"
+    """`auto` detects the format from the files in the folder, never from its name."""
+    downscale: int | None = None
+    """Image downscale factor. None: 1 for D-NeRF (area-averaged for other values), the split
+    preset's rgb/<k>x folder for Nerfies (nerfds 1, vrig 4, interp 2)."""
+    background: Literal["black", "white"] = "black"
+    """Colour RGBA images are composited on: rgb*a + bg*(1-a)."""
+    split: Literal["auto", "nerfds", "vrig", "interp"] = "auto"
+    """Nerfies presets: nerfds = train_ids/val_ids, vrig = train_ids/val_ids, interp =
+    ids[::4]/ids[2::4]. `auto` is nerfds for Nerfies and the transforms files for D-NeRF."""
+    val_as_test: bool = False
+    """D-NeRF: evaluate on the val split (the reference does so for lego)."""
+    cache_images: int = 64
+    """Decoded images kept in memory (uint8, LRU); 0 keeps none."""
+
+    def __post_init__(self) -> None:
+        self.path = Path(self.path)
+        if self.format not in ("auto", "dnerf", "nerfies"):
+            raise ConfigError(f"data.format: unknown format '{self.format}' (auto, dnerf, nerfies)")
+        if self.background not in BACKGROUNDS:
+            raise ConfigError(f"data.background: unknown background '{self.background}' (black, white)")
+        if self.split != "auto" and self.split not in NERFIES_PRESETS:
+            raise ConfigError(f"data.split: unknown split '{self.split}' (auto, {', '.join(NERFIES_PRESETS)})")
+        if self.downscale is not None and (isinstance(self.downscale, bool) or self.downscale < 1):
+            raise ConfigError(f"data.downscale: must be a positive integer, got {self.downscale}")
+        if self.cache_images < 0:
+            raise ConfigError(f"data.cache_images: must be >= 0, got {self.cache_images}")
+
+
+@dataclass(eq=False)
+class Frame:
+    """One posed image. K and viewmat describe the image as returned by image()."""
+
+    name: str
+    time: float
+    width: int
+    height: int
+    K: torch.Tensor
+    """float32 [3,3] pinhole intrinsics; pixel centres at integer + 0.5."""
+    viewmat: torch.Tensor
+    """float32 [4,4] world -> camera, OpenCV axes (x right, y down, z forward)."""
+    image_path: Path
+    _loader: ImageLoader = field(repr=False)
+
+    @property
+    def camera_center(self) -> torch.Tensor:
+        rotation, translation = self.viewmat[:3, :3], self.viewmat[:3, 3]
+        return -rotation.T @ translation
+
+    def image_uint8(self) -> np.ndarray:
+        """Read-only uint8 [H,W,3], composited on the background; shared with the cache."""
+        return self._loader.load(self.image_path)
+
+    def image(self) -> torch.Tensor:
+        """float32 [H,W,3] in [0,1], composited on the background (a fresh tensor)."""
+        return torch.from_numpy(self.image_uint8().astype(np.float32)).div_(255.0)
+
+
+def camera_extent(frames: list[Frame]) -> float:
+    """1.1 x the largest distance of a camera centre from their mean (D-3DGS's extent)."""
+    centers = torch.stack([frame.camera_center for frame in frames]).double()
+    return 1.1 * float((centers - centers.mean(dim=0)).norm(dim=1).max())
+
+
+@dataclass(eq=False)
+class SceneDataset:
+    format: Literal["dnerf", "nerfies"]
+    scene_name: str
+    root: Path
+    splits: dict[str, list[Frame]]
+    background: tuple[float, float, float]
+    points: torch.Tensor | None = None
+    """float32 [N,3] initial points in the frames' world frame, or None."""
+    point_colors: torch.Tensor | None = None
+    """float32 [N,3] in [0,1] when the points come with colours, else None."""
+    warnings: list[str] = field(default_factory=list)
+    """Things a pinhole rasteriser cannot honour (distortion, skew)."""
+    camera_extent: float = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.camera_extent = camera_extent(self.train)
+
+    @property
+    def kind(self) -> Literal["synthetic", "real"]:
+        """Selects the trainer presets: D-NeRF scenes are synthetic, Nerfies-family real."""
+        return "synthetic" if self.format == "dnerf" else "real"
+
+    @property
+    def train(self) -> list[Frame]:
+        return self.splits["train"]
+
+    @property
+    def test(self) -> list[Frame]:
+        return self.splits["test"]

@@ -1,0 +1,98 @@
+"""The interface every deformation field implements, and the static (zero) field."""
+
+from __future__ import annotations
+
+import abc
+
+import torch
+from torch import nn
+
+from liquidgs.fields.config import FieldConfig
+from liquidgs.fields.encoding import time_column
+
+Deltas = tuple[torch.Tensor, torch.Tensor, torch.Tensor]
+
+
+def linear_flops(module: nn.Module) -> int:
+    """2 x multiply-adds of every nn.Linear in module, for one input row."""
+    return sum(2 * m.in_features * m.out_features for m in module.modules() if isinstance(m, nn.Linear))
+
+
+class DeformationField(nn.Module, abc.ABC):
+    """Maps canonical Gaussian means and a time to (d_xyz [N,3], d_rotation [N,4], d_scaling [N,3]).
+
+    The field applies the stop-gradient on xyz itself, so it never passes gradients to the
+    Gaussians' means. Noise (stochastic fields only) is active in training mode, and inside
+    `monte_carlo` whatever the mode.
+    """
+
+    def __init__(self, config: FieldConfig):
+        super().__init__()
+        self.config = config.resolved()
+        self.progress_step = 0
+        self._noise_forced = False
+
+    def forward(self, xyz: torch.Tensor, t: torch.Tensor | float) -> Deltas:
+        if xyz.dim() != 2 or xyz.shape[1] != 3:
+            raise ValueError(f"xyz must have shape [N, 3], got {tuple(xyz.shape)}")
+        xyz = xyz.detach()
+        return self.deltas(xyz, time_column(t, xyz.shape[0], xyz))
+
+    @abc.abstractmethod
+    def deltas(self, xyz: torch.Tensor, t: torch.Tensor) -> Deltas:
+        """The deltas for detached xyz [N, 3] and t of shape [1, 1] or [N, 1]."""
+
+    @abc.abstractmethod
+    def flops_per_gaussian(self) -> int:
+        """Forward FLOPs per Gaussian: 2 x multiply-adds of the Linear layers only.
+
+        Not counted: bias additions, activations, positional encodings, the gate and
+        state-update arithmetic, noise draws and solver steps (all elementwise, O(width)).
+        Layers applied to the time alone (the time network) are counted once per Gaussian,
+        as in the reference code, even though a time shared by all Gaussians is encoded once.
+        """
+
+    def num_parameters(self) -> int:
+        return sum(p.numel() for p in self.parameters())
+
+    def set_progress(self, step: int) -> None:
+        """Record the training step (drives annealed noise schedules; otherwise unused)."""
+        self.progress_step = int(step)
+
+    @property
+    def noise_active(self) -> bool:
+        return self.training or self._noise_forced
+
+    @torch.no_grad()
+    def monte_carlo(self, xyz: torch.Tensor, t: torch.Tensor | float, samples: int) -> tuple[Deltas, Deltas]:
+        """K = samples noisy passes (noise on even in eval mode): per-Gaussian mean and variance.
+
+        The variance is the unbiased sample variance (K - 1 in the denominator), accumulated
+        with Welford's update so memory does not grow with K. Deterministic fields, and
+        stochastic ones whose noise level is currently 0, give zero variance.
+        """
+        if samples < 2:
+            raise ValueError(f"monte_carlo needs samples >= 2, got {samples}")
+        forced, self._noise_forced = self._noise_forced, True
+        try:
+            mean = [value.clone() for value in self(xyz, t)]
+            m2 = [torch.zeros_like(value) for value in mean]
+            for k in range(2, samples + 1):
+                for value, mu, acc in zip(self(xyz, t), mean, m2):
+                    delta = value - mu
+                    mu += delta / k
+                    acc += delta * (value - mu)
+        finally:
+            self._noise_forced = forced
+        return tuple(mean), tuple(m / (samples - 1) for m in m2)
+
+
+class StaticField(DeformationField):
+    """No deformation: zero deltas and no parameters, the floor every field must beat."""
+
+    def deltas(self, xyz: torch.Tensor, t: torch.Tensor) -> Deltas:
+        n = xyz.shape[0]
+        return xyz.new_zeros(n, 3), xyz.new_zeros(n, 4), xyz.new_zeros(n, 3)
+
+    def flops_per_gaussian(self) -> int:
+        return 0

@@ -1,0 +1,132 @@
+"""The gsplat backend: gsplat 1.5.3's CUDA kernels behind `rasterize`'s single-view interface.
+
+It composes gsplat's own pipeline (projection, SH, tile intersection, rasterisation; packed=False,
+classic mode, RGB+ED) so that info["means2d"] is an [N,2] tensor the rasteriser consumes directly,
+which is what makes its .grad and .absgrad meaningful.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import Tensor
+
+GSPLAT_TILE_SIZE = 16
+_availability: dict[str, str | None] = {}
+
+
+def _probe(device: torch.device) -> str | None:
+    try:
+        import gsplat
+    except Exception as error:  # noqa: BLE001 - any import failure means the backend is unusable
+        return f"gsplat does not import ({error})"
+    try:
+        means = torch.tensor([[0.0, 0.0, 3.0]], device=device)
+        quats = torch.tensor([[1.0, 0.0, 0.0, 0.0]], device=device)
+        scales = torch.full((1, 3), 0.1, device=device)
+        opacities = torch.ones(1, device=device)
+        colors = torch.ones(1, 3, device=device)
+        viewmats = torch.eye(4, device=device)[None]
+        Ks = torch.tensor([[[8.0, 0.0, 4.0], [0.0, 8.0, 4.0], [0.0, 0.0, 1.0]]], device=device)
+        gsplat.rasterization(means, quats, scales, opacities, colors, viewmats, Ks, 8, 8)
+        torch.cuda.synchronize(device)
+    except Exception as error:  # noqa: BLE001 - JIT build or kernel failures surface as many types
+        return f"gsplat's CUDA kernels do not build or run ({type(error).__name__}: {error})"
+    return None
+
+
+def unavailable_reason(device: torch.device) -> str | None:
+    """None when gsplat's kernels run on `device`, else why not. Probed once per device, then cached."""
+    if device.type != "cuda":
+        return f"gsplat has no CPU path and the tensors are on {device.type}"
+    key = str(device)
+    if key not in _availability:
+        _availability[key] = _probe(device)
+    return _availability[key]
+
+
+def rasterize_gsplat(
+    means: Tensor,
+    quats: Tensor,
+    scales: Tensor,
+    opacities: Tensor,
+    colors: Tensor,
+    viewmat: Tensor,
+    K: Tensor,
+    width: int,
+    height: int,
+    *,
+    sh_degree: int | None,
+    background: Tensor,
+    near_plane: float,
+    far_plane: float,
+    eps2d: float,
+    absgrad: bool,
+):
+    """Render with gsplat's kernels; returns a RenderOutput like the torch backend's."""
+    from gsplat import (
+        fully_fused_projection,
+        isect_offset_encode,
+        isect_tiles,
+        rasterize_to_pixels,
+        spherical_harmonics,
+    )
+
+    from liquidgs.render.rasterize import DEPTH_ALPHA_FLOOR, RenderOutput
+
+    radii_batched, means2d_batched, depths_batched, conics_batched, _ = fully_fused_projection(
+        means, None, quats, scales, viewmat[None], K[None], width, height,
+        eps2d=eps2d, near_plane=near_plane, far_plane=far_plane, packed=False, opacities=opacities,
+    )  # fmt: skip
+    radii_xy, depths, conics = radii_batched[0], depths_batched[0], conics_batched[0]
+    visible = (radii_xy > 0).all(dim=-1)
+    means2d = means2d_batched[0]
+    if means2d.requires_grad:
+        means2d.retain_grad()
+    if sh_degree is None:
+        rgb_colors = colors
+    else:
+        camera_centre = torch.linalg.inv(viewmat)[:3, 3]
+        sh_rgb = spherical_harmonics(sh_degree, means - camera_centre, colors, masks=visible)
+        rgb_colors = torch.clamp_min(sh_rgb + 0.5, 0.0)
+    features = torch.cat([rgb_colors, depths[:, None]], dim=1)
+    backgrounds = torch.cat([background, background.new_zeros(1)])[None]
+
+    tiles_x = math.ceil(width / GSPLAT_TILE_SIZE)
+    tiles_y = math.ceil(height / GSPLAT_TILE_SIZE)
+    # The rasteriser must consume this view (not means2d) for gsplat to put .absgrad on it.
+    means2d_for_kernel = means2d[None]
+    _, isect_ids, flatten_ids = isect_tiles(
+        means2d_for_kernel, radii_batched, depths_batched, GSPLAT_TILE_SIZE, tiles_x, tiles_y, n_images=1
+    )
+    isect_offsets = isect_offset_encode(isect_ids, 1, tiles_x, tiles_y).reshape(1, tiles_y, tiles_x)
+    rendered, alphas = rasterize_to_pixels(
+        means2d_for_kernel, conics_batched, features[None], opacities[None], width, height,
+        GSPLAT_TILE_SIZE, isect_offsets, flatten_ids, backgrounds=backgrounds, absgrad=absgrad,
+    )  # fmt: skip
+    if absgrad and means2d.requires_grad:
+        # The hook runs when means2d's gradient is formed, i.e. after the kernel's backward set it.
+        def copy_absgrad(grad: Tensor) -> None:
+            means2d.absgrad = means2d_for_kernel.absgrad[0]
+
+        means2d.register_hook(copy_absgrad)
+    alpha = alphas[0]
+    info = {
+        "means2d": means2d,
+        "radii": radii_xy.amax(dim=-1),
+        "radii_xy": radii_xy,
+        "visible": visible,
+        "depths": depths,
+        "conics": conics,
+        "width": width,
+        "height": height,
+        "n_cameras": 1,
+        "backend": "gsplat",
+    }
+    return RenderOutput(
+        rgb=rendered[0, ..., :3],
+        alpha=alpha,
+        depth=rendered[0, ..., 3:] / alpha.clamp_min(DEPTH_ALPHA_FLOOR),
+        info=info,
+    )

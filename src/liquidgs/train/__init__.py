@@ -1,0 +1,1 @@
+"""Training: configuration and presets, the D-3DGS loop, densification, checkpoints."""

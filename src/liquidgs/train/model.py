@@ -1,0 +1,79 @@
+"""A trained dynamic scene: canonical Gaussians plus a deformation field, renderable at a time."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from liquidgs.gaussians.model import activate
+from liquidgs.render import RenderOutput, rasterize
+
+
+@dataclass
+class Deformed:
+    """Activated Gaussians at one time: the rasteriser's inputs."""
+
+    means: torch.Tensor
+    quats: torch.Tensor
+    scales: torch.Tensor
+    opacities: torch.Tensor
+    colors: torch.Tensor
+
+
+def deform(
+    params: torch.nn.ParameterDict,
+    field: torch.nn.Module | None,
+    time: float | torch.Tensor,
+    time_noise: float = 0.0,
+) -> Deformed:
+    """Apply the field's deltas the way D-3DGS does.
+
+    means = xyz + d_xyz; scales = exp(log_scale) + d_scaling (after the activation);
+    rotation = normalize(q) + d_rotation (renormalised by the rasteriser). With field None
+    (the static model, or the warm-up) the deltas are zero.
+    """
+    act = activate(params)
+    if field is None:
+        return Deformed(act["means"], act["quats"], act["scales"], act["opacities"], act["colors"])
+    n = params["means"].shape[0]
+    t = torch.as_tensor(time, dtype=params["means"].dtype, device=params["means"].device)
+    t = t.reshape(-1, 1).expand(n, 1) + time_noise
+    d_xyz, d_rotation, d_scaling = field(params["means"], t)
+    return Deformed(
+        means=act["means"] + d_xyz,
+        quats=act["quats"] + d_rotation,
+        scales=act["scales"] + d_scaling,
+        opacities=act["opacities"],
+        colors=act["colors"],
+    )
+
+
+def render_frame(
+    gaussians: Deformed,
+    viewmat: torch.Tensor,
+    K: torch.Tensor,
+    width: int,
+    height: int,
+    *,
+    sh_degree: int,
+    background: torch.Tensor,
+    backend: str = "auto",
+    absgrad: bool = False,
+) -> RenderOutput:
+    device = gaussians.means.device
+    return rasterize(
+        gaussians.means,
+        gaussians.quats,
+        gaussians.scales,
+        gaussians.opacities,
+        gaussians.colors,
+        viewmat.to(device),
+        K.to(device),
+        width,
+        height,
+        sh_degree=sh_degree,
+        background=background.to(device),
+        backend=backend,
+        absgrad=absgrad,
+    )

@@ -1,0 +1,55 @@
+"""Loading a trained run (config.yml + checkpoint.pt) for evaluation, rendering and export."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+
+from liquidgs.errors import LiquidGSError
+from liquidgs.fields import build_field
+from liquidgs.gaussians import PARAM_KEYS
+from liquidgs.train.config import TrainConfig, load_yaml
+from liquidgs.train.model import Deformed, deform
+from liquidgs.train.trainer import CHECKPOINT, CONFIG, resolve_device
+
+
+@dataclass
+class TrainedRun:
+    run_dir: Path
+    config: TrainConfig
+    params: torch.nn.ParameterDict
+    field: torch.nn.Module
+    sh_degree: int
+    iteration: int
+
+    @property
+    def device(self) -> torch.device:
+        return self.params["means"].device
+
+    @torch.no_grad()
+    def at_time(self, time: float) -> Deformed:
+        return deform(self.params, self.field if self.config.field != "static" else None, time)
+
+
+def load_run(run_dir: str | Path, device: str = "auto") -> TrainedRun:
+    run_dir = Path(run_dir)
+    if not (run_dir / CONFIG).is_file():
+        raise LiquidGSError(f"{run_dir}: not a liquidgs run folder (no {CONFIG})")
+    if not (run_dir / CHECKPOINT).is_file():
+        raise LiquidGSError(f"{run_dir}: the run has no checkpoint yet ({CHECKPOINT})")
+    cfg = load_yaml(run_dir / CONFIG)
+    dev = resolve_device(device if device != "auto" else cfg.device)
+    try:
+        payload = torch.load(run_dir / CHECKPOINT, map_location="cpu", weights_only=False)
+        params = torch.nn.ParameterDict(
+            {k: torch.nn.Parameter(payload["params"][k].to(dev), requires_grad=False) for k in PARAM_KEYS}
+        )
+        field = build_field(cfg.field_config())
+        field.load_state_dict(payload["field"])
+        state = payload["state"]
+    except Exception as err:  # noqa: BLE001 - any unpickling failure means a corrupt file
+        raise LiquidGSError(f"{run_dir / CHECKPOINT}: corrupt or unreadable checkpoint ({err})") from None
+    field = field.to(dev).eval()
+    return TrainedRun(run_dir, cfg, params, field, int(state["sh_degree"]), int(state["iteration"]))

@@ -1,0 +1,435 @@
+"""The D-3DGS training loop with a pluggable deformation field.
+
+Order of one iteration, as in the reference: learning rates, SH degree, one camera from a
+reshuffled stack, deform (zero deltas during warm-up), rasterise, 0.8 L1 + 0.2 D-SSIM,
+backward, densification statistics / densify / prune / opacity reset, Adam steps.
+"""
+
+from __future__ import annotations
+
+import math
+import resource
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from liquidgs.atomic import write_atomic, write_json_atomic
+from liquidgs.data import DataConfig, SceneDataset, load_dataset
+from liquidgs.errors import LiquidGSError
+from liquidgs.eval import LPIPS, LPIPSUnavailable, evaluate_views, ssim
+from liquidgs.fields import build_field
+from liquidgs.gaussians import PARAM_KEYS, init_from_points, init_random_box
+from liquidgs.train.config import TrainConfig, save_yaml
+from liquidgs.train.model import deform, render_frame
+from liquidgs.train.schedules import log_linear_lr, smooth_time_noise_scale
+from liquidgs.train.strategy import D3DGSStrategy
+
+CHECKPOINT = "checkpoint.pt"
+RESULTS = "results.json"
+PER_VIEW = "per_view.json"
+CONFIG = "config.yml"
+
+
+class TrainingDiverged(LiquidGSError):
+    pass
+
+
+def resolve_device(name: str) -> torch.device:
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    return torch.device(name)
+
+
+def data_config(cfg: TrainConfig) -> DataConfig:
+    return DataConfig(
+        path=cfg.data,
+        format=cfg.data_format,
+        downscale=cfg.downscale,
+        background=cfg.background,
+        split=cfg.split,
+        val_as_test=cfg.val_as_test,
+    )
+
+
+def make_lpips(cfg: TrainConfig, device: torch.device) -> tuple[LPIPS | None, str | None]:
+    """The LPIPS metric, or None and the reason it is unavailable (reported, never skipped silently)."""
+    try:
+        return LPIPS(
+            backbone=cfg.eval.lpips_backbone,
+            normalize=cfg.eval.lpips_normalize,
+            weights=cfg.eval.lpips_weights,
+            device=device,
+        ), None
+    except LPIPSUnavailable as err:
+        return None, str(err)
+
+
+@dataclass
+class TrainState:
+    """Everything a checkpoint holds beyond the tensors, so a resumed run continues bit-exactly."""
+
+    iteration: int = 0
+    sh_degree: int = 0
+    camera_stack: list[int] = field(default_factory=list)
+    psnr_ema: float | None = None
+    best_psnr_ema: float = -math.inf
+    train_seconds: float = 0.0
+    evaluations: list[dict] = field(default_factory=list)
+
+
+class Trainer:
+    def __init__(self, cfg: TrainConfig, run_dir: Path, dataset: SceneDataset | None = None):
+        self.cfg = cfg
+        self.run_dir = Path(run_dir)
+        self.device = resolve_device(cfg.device)
+        self.dataset = dataset if dataset is not None else load_dataset(data_config(cfg))
+        if not self.dataset.train:
+            raise LiquidGSError(f"{cfg.data}: the training split is empty")
+        self.background = torch.tensor(self.dataset.background, dtype=torch.float32, device=self.device)
+        torch.manual_seed(cfg.seed)
+        self.camera_rng = np.random.default_rng(cfg.seed)
+        self.params = self._initial_gaussians().to(self.device)
+        self.field = build_field(cfg.field_config()).to(self.device)
+        self.optimizers = {
+            key: torch.optim.Adam([self.params[key]], lr=self._static_lr(key), eps=cfg.optim.adam_eps)
+            for key in PARAM_KEYS
+        }
+        field_params = list(self.field.parameters())
+        self.field_optimizer = (
+            torch.optim.Adam(field_params, lr=cfg.optim.field_lr_init, eps=cfg.optim.adam_eps) if field_params else None
+        )
+        self.strategy = D3DGSStrategy(cfg.densify, self.dataset.camera_extent)
+        self.strategy_state = self.strategy.initial_state(self.params["means"].shape[0], self.device)
+        self.state = TrainState()
+        self.lpips, self.lpips_error = make_lpips(cfg, self.device)
+        self._writer = None
+
+    # ----------------------------------------------------------------- set-up
+    def _initial_gaussians(self) -> torch.nn.ParameterDict:
+        cfg, ds = self.cfg, self.dataset
+        if ds.points is not None:
+            return init_from_points(ds.points, ds.point_colors, sh_degree=cfg.sh_degree)
+        return init_random_box(cfg.init_points, cfg.init_extent, sh_degree=cfg.sh_degree, seed=cfg.seed)
+
+    def _static_lr(self, key: str) -> float:
+        o = self.cfg.optim
+        return {
+            "means": o.means_lr_init * o.spatial_lr_scale,
+            "scales": o.scales_lr,
+            "quats": o.quats_lr,
+            "opacities": o.opacities_lr,
+            "sh0": o.sh0_lr,
+            "shN": o.shN_lr,
+        }[key]
+
+    def _update_learning_rates(self, step: int) -> None:
+        o = self.cfg.optim
+        means_lr = log_linear_lr(
+            step,
+            o.means_lr_init * o.spatial_lr_scale,
+            o.means_lr_final * o.spatial_lr_scale,
+            o.means_lr_steps,
+        )
+        for group in self.optimizers["means"].param_groups:
+            group["lr"] = means_lr
+        if self.field_optimizer is not None:
+            field_lr = log_linear_lr(step, o.field_lr_init, o.field_lr_final, o.field_lr_steps)
+            for group in self.field_optimizer.param_groups:
+                group["lr"] = field_lr
+
+    @property
+    def writer(self):
+        if self._writer is None:
+            from torch.utils.tensorboard import SummaryWriter
+
+            self._writer = SummaryWriter(str(self.run_dir / "tensorboard"))
+        return self._writer
+
+    # ----------------------------------------------------------------- the loop
+    def next_camera(self) -> int:
+        if not self.state.camera_stack:
+            self.state.camera_stack = list(range(len(self.dataset.train)))
+        return self.state.camera_stack.pop(int(self.camera_rng.integers(0, len(self.state.camera_stack))))
+
+    def field_active(self, step: int) -> bool:
+        return self.cfg.field != "static" and step >= self.cfg.warmup
+
+    def time_noise(self, step: int) -> float:
+        cfg = self.cfg
+        if not (cfg.smooth_time and self.field_active(step)):
+            return 0.0
+        frames = len(self.dataset.train) if cfg.smooth_time_scale == "frames" else len(self.state.camera_stack) + 1
+        scale = smooth_time_noise_scale(step, cfg.smooth_time_steps) / frames
+        return float(torch.randn(()).item()) * scale
+
+    def train_step(self, step: int) -> dict:
+        cfg = self.cfg
+        self._update_learning_rates(step)
+        if step % cfg.sh_interval == 0:
+            self.state.sh_degree = min(self.state.sh_degree + 1, cfg.sh_degree)
+        frame = self.dataset.train[self.next_camera()]
+        gt = frame.image().to(self.device)
+        use_field = self.field_active(step)
+        self.field.train()
+        self.field.set_progress(step)
+        gaussians = deform(self.params, self.field if use_field else None, frame.time, self.time_noise(step))
+        if not all(torch.isfinite(t).all() for t in (gaussians.means, gaussians.quats, gaussians.scales)):
+            raise TrainingDiverged(
+                f"non-finite Gaussians at iteration {step}; the last good checkpoint in {self.run_dir} is kept"
+            )
+        out = render_frame(
+            gaussians,
+            frame.viewmat,
+            frame.K,
+            frame.width,
+            frame.height,
+            sh_degree=self.state.sh_degree,
+            background=self.background,
+            backend=cfg.backend,
+            absgrad=cfg.densify.gradient == "absolute",
+        )
+        l1 = (out.rgb - gt).abs().mean()
+        loss = (1.0 - cfg.ssim_weight) * l1 + cfg.ssim_weight * (1.0 - ssim(out.rgb, gt))
+        if not torch.isfinite(loss):
+            raise TrainingDiverged(
+                f"non-finite loss at iteration {step}; the last good checkpoint in {self.run_dir} is kept"
+            )
+        loss.backward()
+        report = self.strategy.step_post_backward(self.params, self.optimizers, self.strategy_state, step, out.info)
+        for optimizer in self.optimizers.values():
+            optimizer.step()
+            optimizer.zero_grad(set_to_none=True)
+        if self.field_optimizer is not None:
+            if use_field:
+                self.field_optimizer.step()
+            self.field_optimizer.zero_grad(set_to_none=True)
+        with torch.no_grad():
+            mse = ((out.rgb.detach().clamp(0, 1) - gt) ** 2).mean()
+            train_psnr = float(-10.0 * torch.log10(mse.clamp_min(1e-12)))
+        self._guard_divergence(step, train_psnr)
+        return {
+            "loss": float(loss.detach()),
+            "psnr": train_psnr,
+            "n_gaussians": self.params["means"].shape[0],
+            **report,
+        }
+
+    def _guard_divergence(self, step: int, train_psnr: float) -> None:
+        s = self.state
+        s.psnr_ema = train_psnr if s.psnr_ema is None else 0.95 * s.psnr_ema + 0.05 * train_psnr
+        if step < max(self.cfg.warmup, 100):
+            s.best_psnr_ema = max(s.best_psnr_ema, s.psnr_ema)
+            return
+        s.best_psnr_ema = max(s.best_psnr_ema, s.psnr_ema)
+        if s.psnr_ema < s.best_psnr_ema - self.cfg.divergence_drop_db:
+            raise TrainingDiverged(
+                f"training PSNR collapsed at iteration {step} ({s.psnr_ema:.1f} dB, best {s.best_psnr_ema:.1f} dB); "
+                f"the last good checkpoint in {self.run_dir} is kept - try a lower field learning rate"
+            )
+
+    def is_eval_step(self, step: int) -> bool:
+        e = self.cfg.eval
+        return step == self.cfg.iterations or (step >= e.start and (step - e.start) % e.every == 0)
+
+    def run(self, progress=None) -> dict:
+        """Train from self.state.iteration to cfg.iterations; returns results.json's content."""
+        cfg = self.cfg
+        save_yaml(cfg, self.run_dir / CONFIG)
+        task = (
+            progress.add_task(
+                "train",
+                total=cfg.iterations,
+                completed=self.state.iteration,
+                loss=float("nan"),
+                psnr=float("nan"),
+                gaussians=self.params["means"].shape[0],
+            )
+            if progress
+            else None
+        )
+        while self.state.iteration < cfg.iterations:
+            step = self.state.iteration + 1
+            started = time.perf_counter()
+            stats = self.train_step(step)
+            self.state.train_seconds += time.perf_counter() - started
+            self.state.iteration = step
+            if step % 10 == 0 or step == 1:
+                for key in ("loss", "psnr", "n_gaussians"):
+                    self.writer.add_scalar(f"train/{key}", stats[key], step)
+            if progress is not None:
+                progress.update(
+                    task,
+                    completed=step,
+                    loss=stats["loss"],
+                    psnr=stats["psnr"],
+                    gaussians=stats["n_gaussians"],
+                )
+            if self.is_eval_step(step):
+                self.evaluate_and_record(step)
+            if step % cfg.checkpoint_every == 0 or step == cfg.iterations:
+                self.save_checkpoint()
+        return self.finish()
+
+    # ----------------------------------------------------------------- evaluation
+    def render_fn(self, frame):
+        time_value = frame.time
+        gaussians = deform(self.params, self.field if self.cfg.field != "static" else None, time_value)
+        return render_frame(
+            gaussians,
+            frame.viewmat,
+            frame.K,
+            frame.width,
+            frame.height,
+            sh_degree=self.state.sh_degree,
+            background=self.background,
+            backend=self.cfg.backend,
+        ).rgb
+
+    @torch.no_grad()
+    def evaluate(self) -> tuple[dict, list[dict]]:
+        self.field.eval()
+        try:
+            return evaluate_views(
+                self.render_fn,
+                self.dataset.test,
+                lpips=self.lpips,
+                lpips_error=self.lpips_error,
+                quantize=self.cfg.eval.quantize_8bit,
+            )
+        finally:
+            self.field.train()
+
+    def evaluate_and_record(self, step: int) -> None:
+        summary, per_view = self.evaluate()
+        record = {"iteration": step, **summary}
+        self.state.evaluations.append(record)
+        for key in ("psnr", "ssim", "lpips"):
+            if isinstance(summary.get(key), (int, float)):
+                self.writer.add_scalar(f"test/{key}", summary[key], step)
+        if step == self.cfg.iterations:
+            self._final_per_view = per_view
+
+    @torch.no_grad()
+    def measure_fps(self) -> float:
+        """Field + rasteriser per frame, device-synchronised, first 5 frames dropped, no I/O."""
+        self.field.eval()
+        frames = self.dataset.test or self.dataset.train
+        n, warm = self.cfg.eval.fps_frames, 5
+        sync = torch.cuda.synchronize if self.device.type == "cuda" else (lambda: None)
+        started = 0.0
+        for i in range(n + warm):
+            if i == warm:
+                sync()
+                started = time.perf_counter()
+            self.render_fn(frames[i % len(frames)])
+        sync()
+        return n / max(time.perf_counter() - started, 1e-9)
+
+    def finish(self) -> dict:
+        cfg = self.cfg
+        evaluations = self.state.evaluations
+        final = next(e for e in reversed(evaluations) if e["iteration"] == cfg.iterations)
+        best = max(evaluations, key=lambda e: e["psnr"])
+        per_view = getattr(self, "_final_per_view", None)
+        if per_view is None:  # resumed after the final evaluation but before results.json
+            _, per_view = self.evaluate()
+        if self.device.type == "cuda":
+            peak_mb, peak_kind = torch.cuda.max_memory_allocated() / 2**20, "cuda_max_memory_allocated"
+        else:
+            peak_mb, peak_kind = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, "process_peak_rss"
+        results = {
+            "scene": self.dataset.scene_name,
+            "data": str(cfg.data),
+            "field": cfg.field,
+            "preset": cfg.preset,
+            "lambda": cfg.resolved_lambda(),
+            "seed": cfg.seed,
+            "iterations": cfg.iterations,
+            "final": final,
+            "best_of": {
+                **best,
+                "note": "best test PSNR over the evaluations during training (test-set model selection, "
+                "as the D-3DGS reference reports); use 'final' for an unbiased number",
+            },
+            "evaluated_at": [e["iteration"] for e in evaluations],
+            "fps": self.measure_fps(),
+            "num_gaussians": int(self.params["means"].shape[0]),
+            "field_parameters": int(self.field.num_parameters()),
+            "field_flops_per_gaussian": int(self.field.flops_per_gaussian()),
+            "train_seconds": round(self.state.train_seconds, 3),
+            "peak_memory_mb": round(peak_mb, 1),
+            "peak_memory_kind": peak_kind,
+            "device": str(self.device),
+            "backend": cfg.backend,
+            "torch": torch.__version__,
+            "lpips_backbone": cfg.eval.lpips_backbone,
+            "lpips_normalize": cfg.eval.lpips_normalize,
+            "resolution": [self.dataset.train[0].width, self.dataset.train[0].height],
+        }
+        write_json_atomic(self.run_dir / PER_VIEW, {"iteration": cfg.iterations, "views": per_view})
+        write_json_atomic(self.run_dir / RESULTS, results)
+        if self._writer is not None:
+            self._writer.close()
+        return results
+
+    # ----------------------------------------------------------------- checkpoints
+    def save_checkpoint(self) -> Path:
+        if not all(torch.isfinite(p).all() for p in self.params.values()):
+            raise TrainingDiverged(
+                f"non-finite Gaussian parameters at iteration {self.state.iteration}; "
+                f"the last good checkpoint in {self.run_dir} is kept"
+            )
+        payload = {
+            "format": "liquidgs-checkpoint-1",
+            "params": {k: v.detach().cpu() for k, v in self.params.items()},
+            "optimizers": {k: o.state_dict() for k, o in self.optimizers.items()},
+            "field": self.field.state_dict(),
+            "field_optimizer": self.field_optimizer.state_dict() if self.field_optimizer else None,
+            "strategy": {k: v.cpu() for k, v in self.strategy_state.items()},
+            "state": self.state.__dict__,
+            "torch_rng": torch.get_rng_state(),
+            "camera_rng": self.camera_rng.bit_generator.state,
+        }
+        path = self.run_dir / CHECKPOINT
+        return write_atomic(path, lambda tmp: torch.save(payload, tmp))
+
+    def load_checkpoint(self, path: Path | None = None) -> None:
+        path = path or self.run_dir / CHECKPOINT
+        try:
+            payload = torch.load(path, map_location="cpu", weights_only=False)
+            if not isinstance(payload, dict) or payload.get("format") != "liquidgs-checkpoint-1":
+                raise ValueError("not a liquidgs checkpoint")
+            params = payload["params"]
+            missing = [k for k in PARAM_KEYS if k not in params]
+            if missing:
+                raise ValueError(f"missing parameters {missing}")
+        except Exception as err:  # noqa: BLE001 - any unpickling failure means a corrupt file
+            raise LiquidGSError(f"{path}: corrupt or unreadable checkpoint ({type(err).__name__}: {err})") from None
+        self.params = torch.nn.ParameterDict({k: torch.nn.Parameter(params[k].to(self.device)) for k in PARAM_KEYS})
+        for key in PARAM_KEYS:
+            optimizer = torch.optim.Adam([self.params[key]], lr=self._static_lr(key), eps=self.cfg.optim.adam_eps)
+            optimizer.load_state_dict(payload["optimizers"][key])
+            self.optimizers[key] = optimizer
+        self.field.load_state_dict(payload["field"])
+        if self.field_optimizer is not None and payload["field_optimizer"] is not None:
+            self.field_optimizer.load_state_dict(payload["field_optimizer"])
+        self.strategy_state = {k: v.to(self.device) for k, v in payload["strategy"].items()}
+        self.state = TrainState(**payload["state"])
+        torch.set_rng_state(payload["torch_rng"])
+        self.camera_rng.bit_generator.state = payload["camera_rng"]
+
+
+def run_directory_state(run_dir: Path) -> str:
+    """'empty' (absent or empty folder), 'finished', 'unfinished', 'configured' or 'foreign'."""
+    if not run_dir.exists() or (run_dir.is_dir() and not any(run_dir.iterdir())):
+        return "empty"
+    if not (run_dir / CONFIG).is_file():
+        return "foreign"
+    if (run_dir / RESULTS).is_file():
+        return "finished"
+    if (run_dir / CHECKPOINT).is_file():
+        return "unfinished"
+    return "configured"
