@@ -86,7 +86,7 @@ def test_ply_round_trip_is_bit_exact(tmp_path, sh_degree):
     loaded = read_ply(path)
     for key, value in params.items():
         assert torch.equal(loaded[key], value.detach()), key
-    assert not list(tmp_path.glob(".*tmp")), "no temporary file may be left behind"
+    assert not list(tmp_path.glob(".*.tmp*")), "no temporary file may be left behind"
 
 
 def test_ply_layout_is_the_standard_one(tmp_path):

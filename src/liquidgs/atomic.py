@@ -23,10 +23,14 @@ _UMASK = _current_umask()
 
 
 def write_atomic(path: str | Path, writer: Callable[[Path], None]) -> Path:
-    """Call writer(tmp_path), then move tmp_path over path. The tmp file is removed on failure."""
+    """Call writer(tmp_path), then move tmp_path over path. The tmp file is removed on failure.
+
+    The temporary name keeps the target's extension, since some writers (ffmpeg) pick the
+    container from it.
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=f".tmp{path.suffix}", dir=path.parent)
     os.close(fd)
     # mkstemp makes the file 0600; results are meant to be shared like any other file.
     os.chmod(tmp, 0o666 & ~_UMASK)

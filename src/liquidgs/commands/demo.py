@@ -118,13 +118,12 @@ def write_report(args: DemoArgs, runs: dict[str, Path], data_path: Path) -> Path
     def fmt(value, digits):
         return "n/a" if value is None else f"{value:.{digits}f}"
 
-    lpips_note = next(iter(results.values()))["final"]
-    lpips_desc = (
-        f"LPIPS: {lpips_note.get('lpips_backbone', '?')} backbone, "
-        f"{'inputs scaled to [-1,1]' if lpips_note.get('lpips_normalize', True) else 'unnormalised inputs (reference quirk)'}"
-        if lpips_note.get("lpips") is not None
-        else f"LPIPS unavailable: {lpips_note.get('lpips_unavailable', 'no weights')}"
-    )
+    final_mlp = results["mlp"]["final"]
+    if final_mlp.get("lpips") is None:
+        lpips_desc = f"LPIPS unavailable: {final_mlp.get('lpips_unavailable', 'no weights')}"
+    else:
+        scaling = "inputs scaled to [-1,1]" if final_mlp.get("lpips_normalize") else "unnormalised inputs"
+        lpips_desc = f"LPIPS: {final_mlp.get('lpips_backbone')} backbone, v0.1, {scaling}"
     lines = [
         f"# liquidgs demo: {dataset.scene_name}",
         "",
@@ -139,10 +138,9 @@ def write_report(args: DemoArgs, runs: dict[str, Path], data_path: Path) -> Path
     ]
     for name, res in results.items():
         final = res["final"]
-        lines.append(
-            f"| {FIELDS[name]} | {fmt(final['psnr'], 2)} | {fmt(final['ssim'], 4)} | {fmt(final.get('lpips'), 4)} "
-            f"| {res['field_parameters']:,} | {res['fps']:.1f} | {res['train_seconds']:.0f} | {res['num_gaussians']:,} |"
-        )
+        scores = f"{fmt(final['psnr'], 2)} | {fmt(final['ssim'], 4)} | {fmt(final.get('lpips'), 4)}"
+        cost = f"{res['field_parameters']:,} | {res['fps']:.1f} | {res['train_seconds']:.0f} | {res['num_gaussians']:,}"
+        lines.append(f"| {FIELDS[name]} | {scores} | {cost} |")
     lines += [
         "",
         lpips_desc + ".",
