@@ -25,8 +25,26 @@ def trained_run(tmp_path_factory) -> Path:
     root = tmp_path_factory.mktemp("cmd")
     scene = Path(generate_synthetic("spinner", root / "spinner", size=40, frames=24, seed=2)) / "dnerf"
     out = root / "run"
-    flags = ["--data", str(scene), "--field", "sde", "--preset", "tiny", "--iterations", "30", "--warmup", "10",
-             "--init-points", "600", "--eval.start", "30", "--eval.fps-frames", "2", "--out", str(out)]
+    flags = [
+        "--data",
+        str(scene),
+        "--field",
+        "sde",
+        "--preset",
+        "tiny",
+        "--iterations",
+        "30",
+        "--warmup",
+        "10",
+        "--init-points",
+        "600",
+        "--eval.start",
+        "30",
+        "--eval.fps-frames",
+        "2",
+        "--out",
+        str(out),
+    ]
     if LPIPS_DIR.is_dir():
         flags += ["--eval.lpips-weights", str(LPIPS_DIR)]
     cfg, run_dir = resolve_config(flags)

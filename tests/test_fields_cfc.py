@@ -6,15 +6,7 @@ from ncps.torch import CfCCell as NcpsCfCCell
 
 from liquidgs.fields import ACTIVATIONS, CfCCell, FieldConfig, build_field
 
-
-@pytest.fixture(autouse=True)
-def one_thread():
-    """One intra-op thread: these small tensors gain nothing from more, and on a shared CPU
-    OpenMP threads waiting for each other slow every op down by orders of magnitude."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 TAUS = ["0", "0.5", "1", "10", "-1", "random"]

@@ -5,15 +5,7 @@ import torch
 
 from liquidgs.fields import FIELD_NAMES, FieldConfig, PositionalEncoding, build_field
 
-
-@pytest.fixture(autouse=True)
-def one_thread():
-    """One intra-op thread: these small tensors gain nothing from more, and on a shared CPU
-    OpenMP threads waiting for each other slow every op down by orders of magnitude."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def embedder_reference(x: torch.Tensor, freqs: int) -> torch.Tensor:

@@ -17,15 +17,7 @@ from liquidgs.fields import (
     solve_ltc_sde,
 )
 
-
-@pytest.fixture(autouse=True)
-def one_thread():
-    """One intra-op thread: these small tensors gain nothing from more, and on a shared CPU
-    OpenMP threads waiting for each other slow every op down by orders of magnitude."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def test_ou_std_is_the_closed_form_and_stable_at_the_limits():

@@ -1,7 +1,12 @@
 """Quality bars (integration, CPU): every deformation field must beat the static model.
 
-Each bar was set after measuring on the 2-core CPU machine (torch 2.13, seed 0); the
-measured numbers are in the comments next to each bar.
+The bars were set after measuring on the 2-core CPU machine (torch 2.13.0, seed 0), final
+test PSNR in dB:
+- default synthetic scene (puppet, 128x128), tiny preset (1,500 iterations):
+  static 22.96, MLP 24.41, CfC 24.30, SDE-LNN 24.25  -> every field >= static + 0.75 dB
+- hellwarrior downscaled to 100x100, tiny preset cut to 600 iterations:
+  static 29.55, MLP 30.29, CfC 30.02, SDE-LNN 29.76  -> every field > static
+Together these runs take about 12 minutes of the suite.
 """
 
 from __future__ import annotations
@@ -59,13 +64,10 @@ def dnerf_scores(tmp_path_factory) -> dict[str, float]:
 
 @pytest.mark.parametrize("field", FIELDS)
 def test_fields_beat_static_on_the_default_synthetic_scene(synthetic_scores, field):
-    margin = synthetic_scores[field] - synthetic_scores["static"]
-    assert margin >= SYNTHETIC_MARGIN_DB, synthetic_scores
+    assert synthetic_scores[field] >= synthetic_scores["static"] + 0.75, synthetic_scores
 
 
 @pytest.mark.parametrize("field", FIELDS)
 def test_fields_beat_static_on_a_shared_dnerf_scene(dnerf_scores, field):
     assert dnerf_scores[field] > dnerf_scores["static"], dnerf_scores
 
-
-SYNTHETIC_MARGIN_DB = 0.5

@@ -24,10 +24,10 @@ class Projection:
     visible: Tensor  # [N] bool
 
 
-def quat_scale_to_covariance(quats: Tensor, scales: Tensor) -> Tensor:
-    """World covariances [N, 3, 3] = R S S^T R^T from wxyz quaternions (any norm) and std-devs."""
+def quat_to_rotmat(quats: Tensor) -> Tensor:
+    """Rotation matrices [N, 3, 3] from wxyz quaternions of any norm."""
     w, x, y, z = torch.nn.functional.normalize(quats, dim=-1).unbind(-1)
-    rotation = torch.stack(
+    return torch.stack(
         [
             1 - 2 * (y * y + z * z),
             2 * (x * y - w * z),
@@ -41,7 +41,11 @@ def quat_scale_to_covariance(quats: Tensor, scales: Tensor) -> Tensor:
         ],
         dim=-1,
     ).reshape(-1, 3, 3)
-    half = rotation * scales[:, None, :]
+
+
+def quat_scale_to_covariance(quats: Tensor, scales: Tensor) -> Tensor:
+    """World covariances [N, 3, 3] = R S S^T R^T from wxyz quaternions (any norm) and std-devs."""
+    half = quat_to_rotmat(quats) * scales[:, None, :]
     return half @ half.transpose(1, 2)
 
 

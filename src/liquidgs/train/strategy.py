@@ -15,6 +15,7 @@ from typing import Literal
 import torch
 
 from liquidgs.gaussians.model import PARAM_KEYS
+from liquidgs.render.projection import quat_to_rotmat
 
 
 @dataclass
@@ -38,24 +39,6 @@ class DensifyConfig:
     split_count: int = 2
     split_scale_divisor: float = 1.6
     reset_opacity_to: float = 0.01
-
-
-def _quat_to_rotmat(q: torch.Tensor) -> torch.Tensor:
-    w, x, y, z = torch.nn.functional.normalize(q, dim=-1).unbind(-1)
-    return torch.stack(
-        [
-            1 - 2 * (y * y + z * z),
-            2 * (x * y - w * z),
-            2 * (x * z + w * y),
-            2 * (x * y + w * z),
-            1 - 2 * (x * x + z * z),
-            2 * (y * z - w * x),
-            2 * (x * z - w * y),
-            2 * (y * z + w * x),
-            1 - 2 * (x * x + y * y),
-        ],
-        dim=-1,
-    ).reshape(*q.shape[:-1], 3, 3)
 
 
 class D3DGSStrategy:
@@ -135,7 +118,7 @@ class D3DGSStrategy:
             k = cfg.split_count
             scales = torch.exp(params["scales"][split_mask]).repeat(k, 1)
             samples = torch.normal(torch.zeros_like(scales), scales, generator=generator)
-            rotmats = _quat_to_rotmat(params["quats"][split_mask]).repeat(k, 1, 1)
+            rotmats = quat_to_rotmat(params["quats"][split_mask]).repeat(k, 1, 1)
             new = {
                 "means": torch.bmm(rotmats, samples[..., None])[..., 0] + params["means"][split_mask].repeat(k, 1),
                 "scales": torch.log(scales / (0.8 * k)),

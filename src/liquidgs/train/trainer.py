@@ -180,17 +180,7 @@ class Trainer:
             raise TrainingDiverged(
                 f"non-finite Gaussians at iteration {step}; the last good checkpoint in {self.run_dir} is kept"
             )
-        out = render_frame(
-            gaussians,
-            frame.viewmat,
-            frame.K,
-            frame.width,
-            frame.height,
-            sh_degree=self.state.sh_degree,
-            background=self.background,
-            backend=cfg.backend,
-            absgrad=cfg.densify.gradient == "absolute",
-        )
+        out = self._render(gaussians, frame, absgrad=cfg.densify.gradient == "absolute")
         l1 = (out.rgb - gt).abs().mean()
         loss = (1.0 - cfg.ssim_weight) * l1 + cfg.ssim_weight * (1.0 - ssim(out.rgb, gt))
         if not torch.isfinite(loss):
@@ -274,19 +264,15 @@ class Trainer:
         return self.finish()
 
     # ----------------------------------------------------------------- evaluation
-    def render_fn(self, frame):
-        time_value = frame.time
-        gaussians = deform(self.params, self.field if self.cfg.field != "static" else None, time_value)
+    def _render(self, gaussians, frame, absgrad: bool = False):
         return render_frame(
-            gaussians,
-            frame.viewmat,
-            frame.K,
-            frame.width,
-            frame.height,
-            sh_degree=self.state.sh_degree,
-            background=self.background,
-            backend=self.cfg.backend,
-        ).rgb
+            gaussians, frame.viewmat, frame.K, frame.width, frame.height,
+            sh_degree=self.state.sh_degree, background=self.background, backend=self.cfg.backend, absgrad=absgrad,
+        )  # fmt: skip
+
+    def render_fn(self, frame):
+        gaussians = deform(self.params, self.field if self.cfg.field != "static" else None, frame.time)
+        return self._render(gaussians, frame).rgb
 
     @torch.no_grad()
     def evaluate(self) -> tuple[dict, list[dict]]:
