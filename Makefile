@@ -7,6 +7,11 @@ BIN := $(VENV)/bin
 
 .PHONY: demo test lint setup
 
+# Offline LPIPS backbone weights, where the project's shared folder provides them.
+ifneq ($(wildcard ../shared/data/lpips),)
+export LIQUIDGS_LPIPS_WEIGHTS ?= $(abspath ../shared/data/lpips)
+endif
+
 $(BIN)/liquidgs: pyproject.toml
 	bash scripts/setup.sh $(VENV) $(PY)
 

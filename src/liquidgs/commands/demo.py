@@ -125,7 +125,7 @@ def write_report(args: DemoArgs, runs: dict[str, Path], data_path: Path) -> Path
         scaling = "inputs scaled to [-1,1]" if final_mlp.get("lpips_normalize") else "unnormalised inputs"
         lpips_desc = f"LPIPS: {final_mlp.get('lpips_backbone')} backbone, v0.1, {scaling}"
     lines = [
-        f"# liquidgs demo: {dataset.scene_name}",
+        f"# liquidgs demo: {args.scene}",
         "",
         f"Scene: built-in synthetic `{args.scene}` at {frame.width}x{frame.height}, "
         f"{len(dataset.train)} train / {len(dataset.test)} test frames (data: `{data_path}`).",
