@@ -70,4 +70,3 @@ def test_fields_beat_static_on_the_default_synthetic_scene(synthetic_scores, fie
 @pytest.mark.parametrize("field", FIELDS)
 def test_fields_beat_static_on_a_shared_dnerf_scene(dnerf_scores, field):
     assert dnerf_scores[field] > dnerf_scores["static"], dnerf_scores
-

@@ -235,3 +235,24 @@ def test_resume_refuses_changed_settings(small_scene, tmp_path, capsys):
     capsys.readouterr()
     assert cli(["train", "--out", str(out), "--resume", "--seed", "7"]) == 2
     assert "seed" in one_line_error(capsys)
+
+
+def test_real_data_path_trains_from_the_point_cloud_with_smooth_time(small_scene, tmp_path):
+    """The Nerfies layout: Gaussians start from points.npy, annealed smooth training is on."""
+    import numpy as np
+
+    nerfies = small_scene.parent / "nerfies"
+    out = tmp_path / "real"
+    flags = [f for f in SMOKE_FLAGS if f not in ("--init-points", "800")]
+    cfg, run_dir = resolve_config(
+        ["--data", str(nerfies), "--field", "cfc", "--smooth-time", "--out", str(out), *flags]
+    )
+    trainer = Trainer(cfg, run_dir)
+    points = np.load(nerfies / "points.npy")
+    assert trainer.params["means"].shape[0] == points.shape[0]
+    assert trainer.dataset.kind == "real"
+    noises = {trainer.time_noise(step) for step in range(cfg.warmup, cfg.warmup + 5)}
+    assert len(noises) == 5 and all(abs(n) < 0.1 for n in noises)
+    assert trainer.time_noise(cfg.warmup - 1) == 0.0  # no smoothing during warm-up
+    results = train(cfg, run_dir)
+    assert results["final"]["psnr"] > 8.0 and (out / "results.json").is_file()
