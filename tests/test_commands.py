@@ -130,3 +130,32 @@ def test_commands_on_a_folder_that_is_no_run(tmp_path, capsys):
         assert cli([command, "--run", str(tmp_path)]) == 2
         err = capsys.readouterr().err.strip()
         assert "not a liquidgs run folder" in err and len(err.splitlines()) == 1
+
+
+def test_uncertainty_maps_from_monte_carlo_renders(trained_run, tmp_path):
+    out = tmp_path / "mc"
+    args = ["render", "--run", str(trained_run), "--out", str(out), "--sweep-frames", "2", "--orbit-frames", "2",
+            "--uncertainty-samples", "4"]  # fmt: skip
+    assert cli(args) == 0
+    summary = json.loads((out / "uncertainty.json").read_text())
+    assert summary["samples"] == 4 and summary["lambda"] == pytest.approx(0.05)
+    views = summary["views"]
+    assert views and sorted(views) == sorted(p.stem for p in (out / "test" / "uncertainty").iterdir())
+    assert max(v["max_std"] for v in views.values()) == pytest.approx(summary["white_is_std"])
+    assert summary["white_is_std"] > 0, "the sde field's noise must show as per-pixel spread"
+    assert len(list((out / "test" / "mc_mean").iterdir())) == len(views)
+
+
+def test_uncertainty_needs_the_sde_field(trained_run, tmp_path, capsys):
+    import shutil
+
+    import yaml
+
+    cfc_run = tmp_path / "cfc_run"
+    shutil.copytree(trained_run, cfc_run)
+    config = yaml.safe_load((cfc_run / "config.yml").read_text())
+    config["field"], config["lambda_"] = "cfc", 0.0
+    (cfc_run / "config.yml").write_text(yaml.safe_dump(config))
+    assert cli(["render", "--run", str(cfc_run), "--uncertainty-samples", "4"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "needs a run of the 'sde' field" in err and len(err.splitlines()) == 1

@@ -3,6 +3,11 @@
 Writes under DIR/renders (or --out): test/render, test/gt and test/depth PNGs for every test
 view; sweep.mp4 (and sweep/ PNGs), time going 0 -> 1 seen from one fixed test camera; and
 orbit.mp4, a circle around the scene at --orbit-time.
+
+With --uncertainty-samples K (the 'sde' field), every test view is also rendered K times
+with the field's noise on: test/mc_mean holds the per-pixel mean and test/uncertainty the
+per-pixel standard deviation (mean over RGB, scaled so that white = the largest value over
+all views); uncertainty.json lists each view's mean and max standard deviation.
 """
 
 from __future__ import annotations
@@ -16,6 +21,7 @@ import tyro
 from rich.console import Console
 from rich.progress import track
 
+from liquidgs.atomic import write_json_atomic
 from liquidgs.data import load_dataset
 from liquidgs.errors import ConfigError
 from liquidgs.media import depth_to_uint8, to_uint8, write_png, write_video
@@ -36,6 +42,8 @@ class RenderArgs:
     orbit_frames: int = 72
     orbit_time: float = 0.5
     fps: int = 24
+    uncertainty_samples: int = 0
+    """Monte-Carlo passes per test view for uncertainty maps (0: none; needs the 'sde' field)."""
     device: str = "auto"
 
 
@@ -52,10 +60,48 @@ def render_view(run: TrainedRun, viewmat, K, width, height, time, background):
     )
 
 
+@torch.no_grad()
+def monte_carlo_views(run: TrainedRun, frames, samples: int, background, out: Path, console) -> Path:
+    """Per-pixel mean and standard deviation of `samples` noisy renders of every test view."""
+    stats = {}
+    for frame in track(frames, description="uncertainty", console=console, disable=console is None):
+        total = torch.zeros(frame.height, frame.width, 3)
+        total_sq = torch.zeros_like(total)
+        for _ in range(samples):
+            rgb = render_frame(
+                run.sample_at_time(frame.time),
+                frame.viewmat,
+                frame.K,
+                frame.width,
+                frame.height,
+                sh_degree=run.sh_degree,
+                background=background,
+                backend=run.config.backend,
+            ).rgb.cpu()
+            total += rgb
+            total_sq += rgb * rgb
+        mean = total / samples
+        variance = (total_sq - samples * mean * mean).clamp_min(0) / (samples - 1)
+        stats[frame.name] = (mean, variance.sqrt().mean(dim=-1))
+    peak = max(float(std.max()) for _, std in stats.values()) or 1.0
+    with run.field.noise_on():
+        noise_level = run.field.current_lambda()
+    summary = {"samples": samples, "lambda": noise_level, "white_is_std": peak, "views": {}}
+    for name, (mean, std) in stats.items():
+        write_png(out / "test" / "mc_mean" / f"{name}.png", mean)
+        write_png(out / "test" / "uncertainty" / f"{name}.png", (std / peak)[..., None].expand(-1, -1, 3))
+        summary["views"][name] = {"mean_std": float(std.mean()), "max_std": float(std.max())}
+    return write_json_atomic(out / "uncertainty.json", summary)
+
+
 def render_run(args: RenderArgs, console: Console | None = None) -> dict[str, Path]:
     if not 0.0 <= args.orbit_time <= 1.0:
         raise ConfigError(f"--orbit-time {args.orbit_time} is outside [0, 1]")
+    if args.uncertainty_samples == 1 or args.uncertainty_samples < 0:
+        raise ConfigError(f"--uncertainty-samples must be 0 or >= 2, got {args.uncertainty_samples}")
     run = load_run(args.run, args.device)
+    if args.uncertainty_samples and run.config.field != "sde":
+        raise ConfigError(f"--uncertainty-samples needs a run of the 'sde' field; {args.run} used '{run.config.field}'")
     dataset = load_dataset(data_config(run.config))
     frames = dataset.test or dataset.train
     if not 0 <= args.sweep_camera < len(frames):
@@ -85,7 +131,10 @@ def render_run(args: RenderArgs, console: Console | None = None) -> dict[str, Pa
         result = render_view(run, viewmat, fixed.K, fixed.width, fixed.height, args.orbit_time, background)
         orbit_frames.append(to_uint8(result.rgb))
     write_video(out / "orbit.mp4", orbit_frames, fps=args.fps)
-    return {"test": out / "test", "sweep": out / "sweep.mp4", "orbit": out / "orbit.mp4"}
+    written = {"test": out / "test", "sweep": out / "sweep.mp4", "orbit": out / "orbit.mp4"}
+    if args.uncertainty_samples:
+        written["uncertainty"] = monte_carlo_views(run, frames, args.uncertainty_samples, background, out, console)
+    return written
 
 
 def main(argv: list[str]) -> int:

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import abc
+import contextlib
+from collections.abc import Iterator
 
 import torch
 from torch import nn
@@ -63,6 +65,15 @@ class DeformationField(nn.Module, abc.ABC):
     def noise_active(self) -> bool:
         return self.training or self._noise_forced
 
+    @contextlib.contextmanager
+    def noise_on(self) -> Iterator[None]:
+        """Noise on even in eval mode (Monte-Carlo sampling); the previous state is restored."""
+        forced, self._noise_forced = self._noise_forced, True
+        try:
+            yield
+        finally:
+            self._noise_forced = forced
+
     @torch.no_grad()
     def monte_carlo(self, xyz: torch.Tensor, t: torch.Tensor | float, samples: int) -> tuple[Deltas, Deltas]:
         """K = samples noisy passes (noise on even in eval mode): per-Gaussian mean and variance.
@@ -73,8 +84,7 @@ class DeformationField(nn.Module, abc.ABC):
         """
         if samples < 2:
             raise ValueError(f"monte_carlo needs samples >= 2, got {samples}")
-        forced, self._noise_forced = self._noise_forced, True
-        try:
+        with self.noise_on():
             mean = [value.clone() for value in self(xyz, t)]
             m2 = [torch.zeros_like(value) for value in mean]
             for k in range(2, samples + 1):
@@ -82,8 +92,6 @@ class DeformationField(nn.Module, abc.ABC):
                     delta = value - mu
                     mu += delta / k
                     acc += delta * (value - mu)
-        finally:
-            self._noise_forced = forced
         return tuple(mean), tuple(m / (samples - 1) for m in m2)
 
 

@@ -32,6 +32,12 @@ class TrainedRun:
     def at_time(self, time: float) -> Deformed:
         return deform(self.params, self.field if self.config.field != "static" else None, time)
 
+    @torch.no_grad()
+    def sample_at_time(self, time: float) -> Deformed:
+        """One noisy deformation (the field's training-time noise, at the run's final step)."""
+        with self.field.noise_on():
+            return self.at_time(time)
+
 
 def load_run(run_dir: str | Path, device: str = "auto") -> TrainedRun:
     run_dir = Path(run_dir)
@@ -52,4 +58,5 @@ def load_run(run_dir: str | Path, device: str = "auto") -> TrainedRun:
     except Exception as err:  # noqa: BLE001 - any unpickling failure means a corrupt file
         raise LiquidGSError(f"{run_dir / CHECKPOINT}: corrupt or unreadable checkpoint ({err})") from None
     field = field.to(dev).eval()
+    field.set_progress(int(state["iteration"]))  # annealed noise schedules resume where training ended
     return TrainedRun(run_dir, cfg, params, field, int(state["sh_degree"]), int(state["iteration"]))
