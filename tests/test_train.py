@@ -256,3 +256,19 @@ def test_real_data_path_trains_from_the_point_cloud_with_smooth_time(small_scene
     assert trainer.time_noise(cfg.warmup - 1) == 0.0  # no smoothing during warm-up
     results = train(cfg, run_dir)
     assert results["final"]["psnr"] > 8.0 and (out / "results.json").is_file()
+
+
+@pytest.mark.skipif(torch.cuda.is_available(), reason="checks the messages of a machine without CUDA")
+@pytest.mark.parametrize(
+    ("flags", "message"),
+    [
+        (["--backend", "gsplat"], "--backend gsplat needs a CUDA device"),
+        (["--device", "cuda"], "sees no CUDA device"),
+        (["--device", "tpu9"], "unknown device 'tpu9'"),
+    ],
+)
+def test_unusable_device_or_backend_is_a_one_line_error(small_scene, tmp_path, capsys, flags, message):
+    out = tmp_path / "run"
+    assert cli(["train", "--data", str(small_scene), "--out", str(out), *SMOKE_FLAGS, *flags]) == 2
+    assert message in one_line_error(capsys)
+    assert not out.exists(), "nothing may be written"

@@ -18,7 +18,7 @@ import torch
 
 from liquidgs.atomic import write_atomic, write_json_atomic
 from liquidgs.data import DataConfig, SceneDataset, load_dataset
-from liquidgs.errors import LiquidGSError
+from liquidgs.errors import ConfigError, LiquidGSError
 from liquidgs.eval import LPIPS, LPIPSUnavailable, evaluate_views, ssim
 from liquidgs.fields import build_field
 from liquidgs.gaussians import PARAM_KEYS, init_from_points, init_random_box
@@ -40,7 +40,13 @@ class TrainingDiverged(LiquidGSError):
 def resolve_device(name: str) -> torch.device:
     if name == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    return torch.device(name)
+    try:
+        device = torch.device(name)
+    except RuntimeError:
+        raise ConfigError(f"unknown device '{name}' (auto, cpu, cuda or cuda:N)") from None
+    if device.type == "cuda" and not torch.cuda.is_available():
+        raise ConfigError(f"device '{name}' asked for, but this torch sees no CUDA device")
+    return device
 
 
 def data_config(cfg: TrainConfig) -> DataConfig:
@@ -85,6 +91,8 @@ class Trainer:
         self.cfg = cfg
         self.run_dir = Path(run_dir)
         self.device = resolve_device(cfg.device)
+        if cfg.backend == "gsplat" and self.device.type != "cuda":
+            raise ConfigError("--backend gsplat needs a CUDA device (gsplat has no CPU path); use auto or torch")
         self.dataset = dataset if dataset is not None else load_dataset(data_config(cfg))
         if not self.dataset.train:
             raise LiquidGSError(f"{cfg.data}: the training split is empty")
