@@ -25,7 +25,6 @@ from liquidgs.data import DEFAULT_SYNTHETIC_SCENE, SYNTHETIC_SCENES, generate_sy
 from liquidgs.errors import ConfigError
 from liquidgs.media import to_uint8, write_png, write_video
 from liquidgs.train.config import preset_config
-from liquidgs.train.model import render_frame
 from liquidgs.train.run import TrainedRun, load_run
 from liquidgs.train.trainer import data_config
 
@@ -89,17 +88,7 @@ def write_report(args: DemoArgs, runs: dict[str, Path], data_path: Path) -> Path
     background = torch.tensor(dataset.background, dtype=torch.float32)
 
     def render(run: TrainedRun, viewmat, frame, t):
-        out = render_frame(
-            run.at_time(t),
-            viewmat,
-            frame.K,
-            frame.width,
-            frame.height,
-            sh_degree=run.sh_degree,
-            background=background,
-            backend=run.config.backend,
-        )
-        return to_uint8(out.rgb)
+        return to_uint8(run.render(viewmat, frame.K, frame.width, frame.height, t, background).rgb)
 
     index = fastest_moving_frame(loaded["mlp"], frames)
     frame = frames[index]

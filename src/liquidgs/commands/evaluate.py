@@ -17,7 +17,6 @@ from rich.console import Console
 from liquidgs.atomic import write_json_atomic
 from liquidgs.data import load_dataset
 from liquidgs.eval import LPIPS, LPIPSUnavailable, evaluate_views
-from liquidgs.train.model import render_frame
 from liquidgs.train.run import load_run
 from liquidgs.train.trainer import data_config
 
@@ -61,16 +60,7 @@ def evaluate_run(args: EvalArgs) -> dict:
     background = torch.tensor(dataset.background, dtype=torch.float32)
 
     def render(frame):
-        return render_frame(
-            run.at_time(frame.time),
-            frame.viewmat,
-            frame.K,
-            frame.width,
-            frame.height,
-            sh_degree=run.sh_degree,
-            background=background,
-            backend=cfg.backend,
-        ).rgb
+        return run.render(frame.viewmat, frame.K, frame.width, frame.height, frame.time, background).rgb
 
     summary, per_view = evaluate_views(
         render, dataset.splits[args.split], lpips=lpips, lpips_error=lpips_error, quantize=quantize

@@ -26,7 +26,6 @@ from liquidgs.data import load_dataset
 from liquidgs.errors import ConfigError
 from liquidgs.media import depth_to_uint8, to_uint8, write_png, write_video
 from liquidgs.render.cameras import orbit
-from liquidgs.train.model import render_frame
 from liquidgs.train.run import TrainedRun, load_run
 from liquidgs.train.trainer import data_config
 
@@ -47,19 +46,6 @@ class RenderArgs:
     device: str = "auto"
 
 
-def render_view(run: TrainedRun, viewmat, K, width, height, time, background):
-    return render_frame(
-        run.at_time(time),
-        viewmat,
-        K,
-        width,
-        height,
-        sh_degree=run.sh_degree,
-        background=background,
-        backend=run.config.backend,
-    )
-
-
 @torch.no_grad()
 def monte_carlo_views(run: TrainedRun, frames, samples: int, background, out: Path, console) -> Path:
     """Per-pixel mean and standard deviation of `samples` noisy renders of every test view."""
@@ -68,16 +54,8 @@ def monte_carlo_views(run: TrainedRun, frames, samples: int, background, out: Pa
         total = torch.zeros(frame.height, frame.width, 3)
         total_sq = torch.zeros_like(total)
         for _ in range(samples):
-            rgb = render_frame(
-                run.sample_at_time(frame.time),
-                frame.viewmat,
-                frame.K,
-                frame.width,
-                frame.height,
-                sh_degree=run.sh_degree,
-                background=background,
-                backend=run.config.backend,
-            ).rgb.cpu()
+            sample = run.render(frame.viewmat, frame.K, frame.width, frame.height, frame.time, background, noisy=True)
+            rgb = sample.rgb.cpu()
             total += rgb
             total_sq += rgb * rgb
         mean = total / samples
@@ -111,7 +89,7 @@ def render_run(args: RenderArgs, console: Console | None = None) -> dict[str, Pa
     quiet = console is None
 
     for frame in track(frames, description="test views", console=console, disable=quiet):
-        result = render_view(run, frame.viewmat, frame.K, frame.width, frame.height, frame.time, background)
+        result = run.render(frame.viewmat, frame.K, frame.width, frame.height, frame.time, background)
         write_png(out / "test" / "render" / f"{frame.name}.png", result.rgb)
         write_png(out / "test" / "gt" / f"{frame.name}.png", frame.image())
         write_png(out / "test" / "depth" / f"{frame.name}.png", depth_to_uint8(result.depth, result.alpha))
@@ -120,7 +98,7 @@ def render_run(args: RenderArgs, console: Console | None = None) -> dict[str, Pa
     sweep = []
     for i in track(range(args.sweep_frames), description="time sweep", console=console, disable=quiet):
         t = i / max(args.sweep_frames - 1, 1)
-        image = to_uint8(render_view(run, fixed.viewmat, fixed.K, fixed.width, fixed.height, t, background).rgb)
+        image = to_uint8(run.render(fixed.viewmat, fixed.K, fixed.width, fixed.height, t, background).rgb)
         write_png(out / "sweep" / f"{i:04d}.png", image)
         sweep.append(image)
     write_video(out / "sweep.mp4", sweep, fps=args.fps)
@@ -128,7 +106,7 @@ def render_run(args: RenderArgs, console: Console | None = None) -> dict[str, Pa
     path = orbit(torch.stack([f.viewmat for f in dataset.train]), args.orbit_frames)
     orbit_frames: list[np.ndarray] = []
     for viewmat in track(path, description="orbit", console=console, disable=quiet):
-        result = render_view(run, viewmat, fixed.K, fixed.width, fixed.height, args.orbit_time, background)
+        result = run.render(viewmat, fixed.K, fixed.width, fixed.height, args.orbit_time, background)
         orbit_frames.append(to_uint8(result.rgb))
     write_video(out / "orbit.mp4", orbit_frames, fps=args.fps)
     written = {"test": out / "test", "sweep": out / "sweep.mp4", "orbit": out / "orbit.mp4"}

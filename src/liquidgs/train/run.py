@@ -11,7 +11,7 @@ from liquidgs.errors import LiquidGSError
 from liquidgs.fields import build_field
 from liquidgs.gaussians import PARAM_KEYS
 from liquidgs.train.config import TrainConfig, load_yaml
-from liquidgs.train.model import Deformed, deform
+from liquidgs.train.model import Deformed, deform, render_frame
 from liquidgs.train.trainer import CHECKPOINT, CONFIG, resolve_device
 
 
@@ -37,6 +37,14 @@ class TrainedRun:
         """One noisy deformation (the field's training-time noise, at the run's final step)."""
         with self.field.noise_on():
             return self.at_time(time)
+
+    def render(self, viewmat, K, width: int, height: int, time: float, background, noisy: bool = False):
+        """The scene at `time` from a camera; noisy=True draws one Monte-Carlo sample of the field."""
+        gaussians = self.sample_at_time(time) if noisy else self.at_time(time)
+        return render_frame(
+            gaussians, viewmat, K, width, height,
+            sh_degree=self.sh_degree, background=background, backend=self.config.backend,
+        )  # fmt: skip
 
 
 def load_run(run_dir: str | Path, device: str = "auto") -> TrainedRun:
