@@ -33,7 +33,7 @@ def test_mlp_layers_follow_the_reference(preset, inputs):
     assert field.skip_after == 4
     heads = (field.head_xyz, field.head_rotation, field.head_scaling)
     assert [head.out_features for head in heads] == [3, 4, 3]
-    timenet = field.time_features.timenet
+    timenet = field.encode.time_features.timenet
     assert (timenet is not None) == (preset == "dnerf")
 
 
@@ -42,7 +42,7 @@ def test_mlp_forward_is_the_reference_computation():
     field = build_field(FieldConfig(name="mlp", preset="dnerf")).double()
     xyz, t = torch.randn(50, 3, dtype=torch.float64), torch.rand(50, 1, dtype=torch.float64)
     x_emb = embedder_reference(xyz, 10)
-    t_emb = field.time_features.timenet(embedder_reference(t, 6))
+    t_emb = field.encode.time_features.timenet(embedder_reference(t, 6))
     h = torch.cat([x_emb, t_emb], dim=-1)
     for i, layer in enumerate(field.layers):
         h = torch.relu(layer(h))

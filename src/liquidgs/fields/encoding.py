@@ -48,6 +48,19 @@ class TimeFeatures(nn.Module):
         return features if self.timenet is None else self.timenet(features)
 
 
+class FieldInputs(nn.Module):
+    """A field's input row per Gaussian: [gamma(x); time features], time encoded once when shared."""
+
+    def __init__(self, xyz_freqs: int, time_freqs: int, timenet_width: int, timenet_out: int):
+        super().__init__()
+        self.xyz_encoding = PositionalEncoding(3, xyz_freqs)
+        self.time_features = TimeFeatures(time_freqs, timenet_width, timenet_out)
+        self.out_dims = self.xyz_encoding.out_dims + self.time_features.out_dims
+
+    def forward(self, xyz: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+        return torch.cat((self.xyz_encoding(xyz), self.time_features(t).expand(xyz.shape[0], -1)), dim=1)
+
+
 def time_column(t: torch.Tensor | float, n: int, like: torch.Tensor) -> torch.Tensor:
     """t as a [1, 1] (shared by all Gaussians) or [n, 1] tensor with like's dtype and device.
 

@@ -11,7 +11,7 @@ from torch import nn
 from liquidgs.fields.base import DeformationField, Deltas, linear_flops
 from liquidgs.fields.cells import CfCCell, OUCell, SolverCell
 from liquidgs.fields.config import FieldConfig
-from liquidgs.fields.encoding import PositionalEncoding, TimeFeatures
+from liquidgs.fields.encoding import FieldInputs
 
 
 def schedule_factor(schedule: str, step: int, decay_steps: int) -> float:
@@ -43,9 +43,8 @@ class LiquidField(DeformationField):
     def __init__(self, config: FieldConfig):
         super().__init__(config)
         cfg = self.config
-        self.xyz_encoding = PositionalEncoding(3, cfg.xyz_freqs)
-        self.time_features = TimeFeatures(cfg.time_freqs, cfg.timenet_width, cfg.timenet_out)
-        in_dims = self.xyz_encoding.out_dims + self.time_features.out_dims
+        self.encode = FieldInputs(cfg.xyz_freqs, cfg.time_freqs, cfg.timenet_width, cfg.timenet_out)
+        in_dims = self.encode.out_dims
         common = dict(
             input_size=in_dims,
             hidden_size=cfg.hidden,
@@ -74,9 +73,7 @@ class LiquidField(DeformationField):
 
     def inputs(self, xyz: torch.Tensor, t: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """u = [gamma(x); time features] [N, I] and tau [N, 1]; a shared t is encoded once."""
-        n = xyz.shape[0]
-        u = torch.cat((self.xyz_encoding(xyz), self.time_features(t).expand(n, -1)), dim=1)
-        return u, t.expand(n, 1)
+        return self.encode(xyz, t), t.expand(xyz.shape[0], 1)
 
     def hidden_state(self, u: torch.Tensor, tau: torch.Tensor) -> torch.Tensor:
         """The state after the last cell, for inputs u [N, I] and tau [N, 1]."""

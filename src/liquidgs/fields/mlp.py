@@ -8,7 +8,7 @@ from torch.nn import functional as F
 
 from liquidgs.fields.base import DeformationField, Deltas, linear_flops
 from liquidgs.fields.config import FieldConfig
-from liquidgs.fields.encoding import PositionalEncoding, TimeFeatures
+from liquidgs.fields.encoding import FieldInputs
 
 
 class MLPField(DeformationField):
@@ -24,9 +24,8 @@ class MLPField(DeformationField):
     def __init__(self, config: FieldConfig):
         super().__init__(config)
         cfg = self.config
-        self.xyz_encoding = PositionalEncoding(3, cfg.xyz_freqs)
-        self.time_features = TimeFeatures(cfg.time_freqs, cfg.timenet_width, cfg.timenet_out)
-        in_dims = self.xyz_encoding.out_dims + self.time_features.out_dims
+        self.encode = FieldInputs(cfg.xyz_freqs, cfg.time_freqs, cfg.timenet_width, cfg.timenet_out)
+        in_dims = self.encode.out_dims
         width, depth = cfg.mlp_width, cfg.mlp_depth
         self.skip_after = depth // 2 if depth // 2 < depth - 1 else None
         self.layers = nn.ModuleList([nn.Linear(in_dims, width)])
@@ -37,8 +36,7 @@ class MLPField(DeformationField):
         self.head_scaling = nn.Linear(width, 3)
 
     def deltas(self, xyz: torch.Tensor, t: torch.Tensor) -> Deltas:
-        n = xyz.shape[0]
-        inputs = torch.cat((self.xyz_encoding(xyz), self.time_features(t).expand(n, -1)), dim=1)
+        inputs = self.encode(xyz, t)
         h = inputs
         for i, layer in enumerate(self.layers):
             h = F.relu(layer(h))
