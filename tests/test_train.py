@@ -60,6 +60,21 @@ def run_train(args: list[str]) -> dict:
     return train(cfg, run_dir)
 
 
+def train_until_interrupted(args: list[str], monkeypatch) -> None:
+    """Start a run and stop it like Ctrl-C at iteration 21, just after its checkpoint at 20."""
+    original_step = Trainer.train_step
+
+    def stop_after_checkpoint(self, step):
+        if step == 21:
+            raise KeyboardInterrupt
+        return original_step(self, step)
+
+    monkeypatch.setattr(Trainer, "train_step", stop_after_checkpoint)
+    with pytest.raises(KeyboardInterrupt):
+        run_train(args)
+    monkeypatch.setattr(Trainer, "train_step", original_step)
+
+
 @pytest.mark.parametrize("field", ["static", "mlp", "cfc", "sde"])
 def test_each_field_trains_and_writes_a_complete_run(small_scene, tmp_path, field):
     out = tmp_path / field
@@ -87,17 +102,7 @@ def test_resume_matches_an_uninterrupted_run(small_scene, tmp_path, monkeypatch)
     run_train([*flags, "--out", str(whole)])
 
     interrupted = tmp_path / "interrupted"
-    original_step = Trainer.train_step
-
-    def stop_after_checkpoint(self, step):
-        if step == 21:
-            raise KeyboardInterrupt
-        return original_step(self, step)
-
-    monkeypatch.setattr(Trainer, "train_step", stop_after_checkpoint)
-    with pytest.raises(KeyboardInterrupt):
-        run_train([*flags, "--out", str(interrupted)])
-    monkeypatch.setattr(Trainer, "train_step", original_step)
+    train_until_interrupted([*flags, "--out", str(interrupted)], monkeypatch)
     assert not (interrupted / "results.json").exists()
     # Restarting without --resume is refused rather than silently starting over.
     assert cli(["train", *flags, "--out", str(interrupted)]) == 2
@@ -193,17 +198,9 @@ def test_output_folder_with_another_run_is_not_touched(small_scene, tmp_path, ca
 
 def test_corrupt_checkpoint_on_resume_is_a_clear_error(small_scene, tmp_path, capsys, monkeypatch):
     out = tmp_path / "run"
-    original_step = Trainer.train_step
-
-    def stop(self, step):
-        if step == 21:
-            raise KeyboardInterrupt
-        return original_step(self, step)
-
-    monkeypatch.setattr(Trainer, "train_step", stop)
-    with pytest.raises(KeyboardInterrupt):
-        run_train(["--data", str(small_scene), "--field", "mlp", "--out", str(out), *SMOKE_FLAGS])
-    monkeypatch.setattr(Trainer, "train_step", original_step)
+    train_until_interrupted(
+        ["--data", str(small_scene), "--field", "mlp", "--out", str(out), *SMOKE_FLAGS], monkeypatch
+    )
     checkpoint = out / "checkpoint.pt"
     checkpoint.write_bytes(checkpoint.read_bytes()[:1000])
     corrupt = checkpoint.read_bytes()
