@@ -16,6 +16,7 @@ import tyro
 from rich.console import Console
 from rich.progress import track
 
+from liquidgs.atomic import write_atomic
 from liquidgs.errors import ConfigError
 from liquidgs.gaussians import write_ply
 from liquidgs.train.run import TrainedRun, load_run
@@ -60,8 +61,6 @@ def export_run(args: ExportArgs, console: Console | None = None) -> list[Path]:
     out = args.out or args.run / "export"
     written = [write_ply(out / "canonical.ply", run.params)]
     field_path = out / "field.pt"
-    from liquidgs.atomic import write_atomic
-
     payload = {"config": dataclasses.asdict(run.config.field_config()), "state_dict": run.field.state_dict()}
     written.append(write_atomic(field_path, lambda tmp: torch.save(payload, tmp)))
     for t in args.time:

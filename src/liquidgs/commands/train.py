@@ -10,6 +10,7 @@ preset's values as defaults. The resolved configuration is written to DIR/config
 from __future__ import annotations
 
 import argparse
+import json
 from pathlib import Path
 
 import tyro
@@ -115,8 +116,6 @@ def train(cfg: TrainConfig, run_dir: Path, console: Console | None = None, datas
     console = console or Console(stderr=True)
     state = check_run_dir(cfg, run_dir)
     if state == "finished" and not cfg.resume:
-        import json
-
         console.print(f"{run_dir}: already finished; results in {run_dir / 'results.json'}")
         return json.loads((run_dir / "results.json").read_text())
     # Load (and so validate) the data before anything is written.

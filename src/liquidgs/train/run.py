@@ -12,7 +12,7 @@ from liquidgs.fields import build_field
 from liquidgs.gaussians import PARAM_KEYS
 from liquidgs.train.config import TrainConfig, load_yaml
 from liquidgs.train.model import Deformed, deform, render_frame
-from liquidgs.train.trainer import CHECKPOINT, CONFIG, resolve_device
+from liquidgs.train.trainer import CHECKPOINT, CONFIG, read_checkpoint, resolve_device
 
 
 @dataclass
@@ -55,16 +55,16 @@ def load_run(run_dir: str | Path, device: str = "auto") -> TrainedRun:
         raise LiquidGSError(f"{run_dir}: the run has no checkpoint yet ({CHECKPOINT})")
     cfg = load_yaml(run_dir / CONFIG)
     dev = resolve_device(device if device != "auto" else cfg.device)
+    payload = read_checkpoint(run_dir / CHECKPOINT)
+    params = torch.nn.ParameterDict(
+        {k: torch.nn.Parameter(payload["params"][k].to(dev), requires_grad=False) for k in PARAM_KEYS}
+    )
+    field = build_field(cfg.field_config())
     try:
-        payload = torch.load(run_dir / CHECKPOINT, map_location="cpu", weights_only=False)
-        params = torch.nn.ParameterDict(
-            {k: torch.nn.Parameter(payload["params"][k].to(dev), requires_grad=False) for k in PARAM_KEYS}
-        )
-        field = build_field(cfg.field_config())
         field.load_state_dict(payload["field"])
-        state = payload["state"]
-    except Exception as err:  # noqa: BLE001 - any unpickling failure means a corrupt file
+    except RuntimeError as err:  # weights of another field than config.yml describes
         raise LiquidGSError(f"{run_dir / CHECKPOINT}: corrupt or unreadable checkpoint ({err})") from None
+    state = payload["state"]
     field = field.to(dev).eval()
     field.set_progress(int(state["iteration"]))  # annealed noise schedules resume where training ended
     return TrainedRun(run_dir, cfg, params, field, int(state["sh_degree"]), int(state["iteration"]))

@@ -31,6 +31,7 @@ CHECKPOINT = "checkpoint.pt"
 RESULTS = "results.json"
 PER_VIEW = "per_view.json"
 CONFIG = "config.yml"
+CHECKPOINT_FORMAT = "liquidgs-checkpoint-1"
 
 
 class TrainingDiverged(LiquidGSError):
@@ -185,16 +186,12 @@ class Trainer:
         self.field.set_progress(step)
         gaussians = deform(self.params, self.field if use_field else None, frame.time, self.time_noise(step))
         if not all(torch.isfinite(t).all() for t in (gaussians.means, gaussians.quats, gaussians.scales)):
-            raise TrainingDiverged(
-                f"non-finite Gaussians at iteration {step}; the last good checkpoint in {self.run_dir} is kept"
-            )
+            raise self._diverged(f"non-finite Gaussians at iteration {step}")
         out = self._render(gaussians, frame, absgrad=cfg.densify.gradient == "absolute")
         l1 = (out.rgb - gt).abs().mean()
         loss = (1.0 - cfg.ssim_weight) * l1 + cfg.ssim_weight * (1.0 - ssim(out.rgb, gt))
         if not torch.isfinite(loss):
-            raise TrainingDiverged(
-                f"non-finite loss at iteration {step}; the last good checkpoint in {self.run_dir} is kept"
-            )
+            raise self._diverged(f"non-finite loss at iteration {step}")
         loss.backward()
         report = self.strategy.step_post_backward(self.params, self.optimizers, self.strategy_state, step, out.info)
         for optimizer in self.optimizers.values():
@@ -218,15 +215,15 @@ class Trainer:
     def _guard_divergence(self, step: int, train_psnr: float) -> None:
         s = self.state
         s.psnr_ema = train_psnr if s.psnr_ema is None else 0.95 * s.psnr_ema + 0.05 * train_psnr
-        if step < max(self.cfg.warmup, 100):
-            s.best_psnr_ema = max(s.best_psnr_ema, s.psnr_ema)
-            return
         s.best_psnr_ema = max(s.best_psnr_ema, s.psnr_ema)
-        if s.psnr_ema < s.best_psnr_ema - self.cfg.divergence_drop_db:
-            raise TrainingDiverged(
-                f"training PSNR collapsed at iteration {step} ({s.psnr_ema:.1f} dB, best {s.best_psnr_ema:.1f} dB); "
-                f"the last good checkpoint in {self.run_dir} is kept - try a lower field learning rate"
+        if step >= max(self.cfg.warmup, 100) and s.psnr_ema < s.best_psnr_ema - self.cfg.divergence_drop_db:
+            raise self._diverged(
+                f"training PSNR collapsed at iteration {step} ({s.psnr_ema:.1f} dB, best {s.best_psnr_ema:.1f} dB)",
+                " - try a lower field learning rate",
             )
+
+    def _diverged(self, what: str, advice: str = "") -> TrainingDiverged:
+        return TrainingDiverged(f"{what}; the last good checkpoint in {self.run_dir} is kept{advice}")
 
     def is_eval_step(self, step: int) -> bool:
         e = self.cfg.eval
@@ -372,12 +369,9 @@ class Trainer:
     # ----------------------------------------------------------------- checkpoints
     def save_checkpoint(self) -> Path:
         if not all(torch.isfinite(p).all() for p in self.params.values()):
-            raise TrainingDiverged(
-                f"non-finite Gaussian parameters at iteration {self.state.iteration}; "
-                f"the last good checkpoint in {self.run_dir} is kept"
-            )
+            raise self._diverged(f"non-finite Gaussian parameters at iteration {self.state.iteration}")
         payload = {
-            "format": "liquidgs-checkpoint-1",
+            "format": CHECKPOINT_FORMAT,
             "params": {k: v.detach().cpu() for k, v in self.params.items()},
             "optimizers": {k: o.state_dict() for k, o in self.optimizers.items()},
             "field": self.field.state_dict(),
@@ -391,17 +385,8 @@ class Trainer:
         return write_atomic(path, lambda tmp: torch.save(payload, tmp))
 
     def load_checkpoint(self, path: Path | None = None) -> None:
-        path = path or self.run_dir / CHECKPOINT
-        try:
-            payload = torch.load(path, map_location="cpu", weights_only=False)
-            if not isinstance(payload, dict) or payload.get("format") != "liquidgs-checkpoint-1":
-                raise ValueError("not a liquidgs checkpoint")
-            params = payload["params"]
-            missing = [k for k in PARAM_KEYS if k not in params]
-            if missing:
-                raise ValueError(f"missing parameters {missing}")
-        except Exception as err:  # noqa: BLE001 - any unpickling failure means a corrupt file
-            raise LiquidGSError(f"{path}: corrupt or unreadable checkpoint ({type(err).__name__}: {err})") from None
+        payload = read_checkpoint(path or self.run_dir / CHECKPOINT)
+        params = payload["params"]
         self.params = torch.nn.ParameterDict({k: torch.nn.Parameter(params[k].to(self.device)) for k in PARAM_KEYS})
         for key in PARAM_KEYS:
             optimizer = torch.optim.Adam([self.params[key]], lr=self._static_lr(key), eps=self.cfg.optim.adam_eps)
@@ -414,6 +399,20 @@ class Trainer:
         self.state = TrainState(**payload["state"])
         torch.set_rng_state(payload["torch_rng"])
         self.camera_rng.bit_generator.state = payload["camera_rng"]
+
+
+def read_checkpoint(path: Path) -> dict:
+    """A checkpoint's contents; an unreadable, truncated or foreign file is one error naming it."""
+    try:
+        payload = torch.load(path, map_location="cpu", weights_only=False)
+        if not isinstance(payload, dict) or payload.get("format") != CHECKPOINT_FORMAT:
+            raise ValueError("not a liquidgs checkpoint")
+        missing = [k for k in PARAM_KEYS if k not in payload["params"]]
+        if missing:
+            raise ValueError(f"missing parameters {missing}")
+    except Exception as err:  # noqa: BLE001 - any unpickling failure means a corrupt file
+        raise LiquidGSError(f"{path}: corrupt or unreadable checkpoint ({type(err).__name__}: {err})") from None
+    return payload
 
 
 def run_directory_state(run_dir: Path) -> str:
