@@ -19,6 +19,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "export": ("liquidgs.commands.export", "canonical PLY, PLY at a time, PLY sequence"),
     "data": ("liquidgs.commands.data", "generate synthetic scenes, validate dataset folders"),
     "bench": ("liquidgs.commands.bench", "benchmarks that print JSON (raster, fields)"),
+    "experiment": ("liquidgs.commands.experiment", "grids of runs (local or Ray) and the paper's tables"),
 }
 
 

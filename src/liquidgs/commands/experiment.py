@@ -1,0 +1,146 @@
+"""`liquidgs experiment {run,report,list}`: grids of runs and the paper's tables from them.
+
+    liquidgs experiment run SPEC --data-root DIR [--out DIR] [--executor local|ray]
+                            [--ray-address ADDR] [--parallel N] [--dry-run]
+    liquidgs experiment report SPEC_OR_DIR [--out DIR] [--eval final|best_of] [--references]
+    liquidgs experiment list
+
+SPEC is a built-in spec name (`liquidgs experiment list`) or a YAML file. Runs go to
+DIR/<dataset>/<scene>/<field>/<config hash>/ (default DIR: outputs/experiments/<spec name>);
+finished runs are skipped, interrupted ones resumed, and a failed run does not stop the others.
+"""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+import tyro
+from rich.console import Console
+from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
+from liquidgs.errors import ConfigError
+from liquidgs.experiments import BUILTIN_SPECS, expand, load_spec, read_manifest, write_manifest
+from liquidgs.experiments.plan import MANIFEST
+from liquidgs.experiments.runner import RunOutcome, run_experiment
+
+EXPERIMENTS_ROOT = Path("outputs") / "experiments"
+
+
+@dataclass
+class RunArgs:
+    spec: tyro.conf.Positional[str]
+    """Built-in spec name or YAML file."""
+    data_root: Path
+    """Folder holding the scenes (as <scene>/ or <dataset>/<scene>/)."""
+    out: Path | None = None
+    """Experiment folder (default outputs/experiments/<spec name>)."""
+    executor: Literal["local", "ray"] = "local"
+    ray_address: str | None = None
+    """An existing Ray cluster (e.g. 'auto' or 'ray://head:10001'); default: a local Ray instance."""
+    parallel: int | None = None
+    """Runs at a time (default: one per GPU, one on a CPU)."""
+    dry_run: bool = False
+    """Print the runs and where they would go; train nothing."""
+
+
+@dataclass
+class ReportArgs:
+    spec_or_dir: tyro.conf.Positional[str]
+    """An experiment folder, or a spec name / YAML file (its default folder)."""
+    out: Path | None = None
+    """Report folder (default <experiment>/report)."""
+    eval: Literal["final", "best_of"] = "final"
+    """Which evaluation every number is: the last iteration, or the best test PSNR during training."""
+    references: bool = False
+    """Add the paper's printed numbers and the published D-3DGS numbers, with the difference per cell."""
+
+
+def experiment_dir(spec_name: str, out: Path | None) -> Path:
+    return out if out is not None else EXPERIMENTS_ROOT / spec_name
+
+
+def run(args: RunArgs, console: Console) -> int:
+    spec = load_spec(args.spec)
+    experiment = expand(spec, args.data_root, experiment_dir(spec.name, args.out))
+    done = [r for r in experiment.runs if r.is_done(experiment.directory)]
+    if args.dry_run:
+        for entry in experiment.runs:
+            state = "done" if entry in done else "to run"
+            print(f"{entry.name:<44} {state:<7} {entry.folder(experiment.directory)}")
+        print(f"{len(experiment.runs)} runs ({len(done)} done) in {experiment.directory}; nothing was run (--dry-run)")
+        return 0
+    write_manifest(experiment)
+    console.print(
+        f"experiment {spec.name}: {len(experiment.runs)} runs, {len(done)} already done, executor {args.executor} "
+        f"-> {experiment.directory}"
+    )
+    outcomes: list[RunOutcome] = []
+    with Progress(
+        TextColumn("[bold]{task.description}"),
+        BarColumn(),
+        TextColumn("{task.completed}/{task.total} runs"),
+        TimeElapsedColumn(),
+        TextColumn("ETA"),
+        TimeRemainingColumn(),
+        TextColumn("{task.fields[last]}"),
+        console=console,
+    ) as progress:
+        task = progress.add_task(spec.name, total=len(experiment.runs), last="")
+
+        def record(outcome: RunOutcome) -> None:
+            outcomes.append(outcome)
+            progress.update(task, advance=1, last=f"{outcome.status}: {outcome.name}")
+
+        run_experiment(experiment, args.executor, args.parallel, args.ray_address, on_outcome=record)
+    counts = {status: sum(o.status == status for o in outcomes) for status in ("done", "skipped", "failed")}
+    console.print(f"done {counts['done']}, skipped {counts['skipped']} (finished before), failed {counts['failed']}")
+    for outcome in outcomes:
+        if outcome.status == "failed":
+            console.print(f"  [red]failed[/] {outcome.name}: {outcome.message}\n         log: {outcome.log}")
+    if counts["failed"]:
+        return 1
+    console.print(f"report: liquidgs experiment report {experiment.directory}")
+    return 0
+
+
+def report(args: ReportArgs, console: Console) -> int:
+    from liquidgs.experiments.report import write_report
+
+    target = Path(args.spec_or_dir)
+    if not (target / MANIFEST).is_file():
+        if target.is_dir():
+            read_manifest(target)  # raises: a folder that is not an experiment
+        target = experiment_dir(load_spec(args.spec_or_dir).name, None)
+    experiment = read_manifest(target)
+    path = write_report(experiment.directory, args.out, evaluation=args.eval, references=args.references)
+    console.print(f"report: {path}")
+    return 0
+
+
+def list_specs() -> int:
+    for name, spec in BUILTIN_SPECS.items():
+        runs = sum(
+            len(g.scenes) * len(g.seeds) * sum(len(g.lambdas) if f == "sde" else 1 for f in g.fields)
+            for g in spec.grids
+        )
+        print(f"{name:<13} {runs:>4} runs  {spec.description}")
+    return 0
+
+
+def main(argv: list[str]) -> int:
+    usage = "usage: liquidgs experiment {run,report,list} [ARGS...]  (see --help of each)"
+    if not argv or argv[0] in ("-h", "--help"):
+        print(__doc__ if argv else usage, file=sys.stderr if not argv else sys.stdout)
+        return 0 if argv else 2
+    action, rest = argv[0], argv[1:]
+    console = Console(stderr=True, soft_wrap=True)  # failure lines hold paths: never wrap them
+    if action == "run":
+        return run(tyro.cli(RunArgs, args=rest, prog="liquidgs experiment run", description=__doc__), console)
+    if action == "report":
+        return report(tyro.cli(ReportArgs, args=rest, prog="liquidgs experiment report", description=__doc__), console)
+    if action == "list":
+        return list_specs()
+    raise ConfigError(f"unknown experiment action '{action}' (run, report or list)")

@@ -1,0 +1,214 @@
+"""Executing an experiment: every run as a `liquidgs train` subprocess, locally or as Ray tasks.
+
+results.json is the only "done" marker: a run that has it is skipped, a run with a
+checkpoint but no results is resumed, anything else starts afresh. The decision is taken
+when the run starts (not when the grid is planned), so a Ray task retried after its worker
+died resumes from the checkpoint its first attempt left.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import ctypes
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterable
+from concurrent.futures import ThreadPoolExecutor, as_completed
+from dataclasses import dataclass
+from pathlib import Path
+from queue import Queue
+
+from liquidgs.errors import ConfigError
+from liquidgs.experiments.plan import Experiment, RunEntry
+from liquidgs.train.trainer import CHECKPOINT
+
+LOGS = "logs"
+EXECUTORS = ("local", "ray")
+
+
+@dataclass(frozen=True)
+class RunOutcome:
+    name: str
+    status: str  # "done" (trained now), "skipped" (finished before) or "failed"
+    seconds: float
+    log: str
+    message: str = ""
+
+
+def log_path(experiment_dir: Path, entry: RunEntry) -> Path:
+    return Path(experiment_dir) / LOGS / f"{entry.name}.log"
+
+
+def train_command(entry: RunEntry, experiment_dir: Path) -> list[str]:
+    folder = entry.folder(experiment_dir)
+    command = [sys.executable, "-m", "liquidgs.cli", "train", *entry.train_args, "--out", str(folder)]
+    if (folder / CHECKPOINT).is_file():
+        command.append("--resume")
+    return command
+
+
+def _die_with_parent() -> None:
+    """Linux: the training process gets SIGKILL when the process that started it dies, so a
+    killed Ray worker never leaves an orphan training holding the run folder."""
+    with contextlib.suppress(OSError):
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
+
+
+def _last_line(path: Path) -> str:
+    try:
+        lines = [ln.strip() for ln in path.read_text(errors="replace").splitlines() if ln.strip()]
+    except OSError:
+        return ""
+    return lines[-1][:300] if lines else ""
+
+
+def execute_run(entry: RunEntry, experiment_dir: str, env: dict[str, str] | None = None) -> RunOutcome:
+    """Train one run to completion (or find it done); never raises for a failed training."""
+    experiment_dir = Path(experiment_dir)
+    log = log_path(experiment_dir, entry)
+    if entry.is_done(experiment_dir):
+        return RunOutcome(entry.name, "skipped", 0.0, str(log))
+    log.parent.mkdir(parents=True, exist_ok=True)
+    started = time.perf_counter()
+    command = train_command(entry, experiment_dir)
+    with open(log, "a") as stream:
+        stream.write(f"$ {' '.join(command)}\n")
+        stream.flush()
+        code = subprocess.call(
+            command,
+            stdout=stream,
+            stderr=subprocess.STDOUT,
+            stdin=subprocess.DEVNULL,
+            env={**os.environ, **(env or {}), "PYTHONUNBUFFERED": "1"},
+            preexec_fn=_die_with_parent if sys.platform.startswith("linux") else None,
+        )
+    seconds = time.perf_counter() - started
+    if code == 0 and entry.is_done(experiment_dir):
+        return RunOutcome(entry.name, "done", seconds, str(log))
+    reason = _last_line(log) or f"exit code {code}"
+    return RunOutcome(entry.name, "failed", seconds, str(log), f"exit code {code}: {reason}")
+
+
+def _gpu_count() -> int:
+    try:
+        import torch
+
+        return torch.cuda.device_count()
+    except Exception:  # noqa: BLE001 - no usable torch/CUDA means no GPUs to share out
+        return 0
+
+
+def default_parallel() -> int:
+    """One run per GPU; one at a time on a CPU (a run already uses every core)."""
+    return max(1, _gpu_count())
+
+
+def _slot_environments(parallel: int) -> list[dict[str, str]]:
+    gpus = _gpu_count()
+    if gpus:
+        return [{"CUDA_VISIBLE_DEVICES": str(slot % gpus)} for slot in range(parallel)]
+    threads = max(1, (os.cpu_count() or 1) // parallel)
+    return [{"OMP_NUM_THREADS": str(threads)} if parallel > 1 else {} for _ in range(parallel)]
+
+
+def run_local(
+    runs: Iterable[RunEntry], experiment_dir: Path, parallel: int, on_outcome: Callable[[RunOutcome], None]
+) -> list[RunOutcome]:
+    """Subprocesses, `parallel` at a time, each slot with its own GPU (or share of the CPU cores)."""
+    slots: Queue[dict[str, str]] = Queue()
+    for env in _slot_environments(parallel):
+        slots.put(env)
+
+    def in_slot(entry: RunEntry) -> RunOutcome:
+        env = slots.get()
+        try:
+            return execute_run(entry, str(experiment_dir), env)
+        finally:
+            slots.put(env)
+
+    outcomes = []
+    with ThreadPoolExecutor(max_workers=parallel) as pool:
+        for future in as_completed([pool.submit(in_slot, entry) for entry in runs]):
+            outcomes.append(future.result())
+            on_outcome(outcomes[-1])
+    return outcomes
+
+
+def import_ray():
+    try:
+        import ray
+    except ImportError:
+        raise ConfigError(
+            "--executor ray needs Ray, which is not installed: pip install 'liquidgs[ray]' (or pip install ray)"
+        ) from None
+    return ray
+
+
+def run_ray(
+    runs: Iterable[RunEntry],
+    experiment_dir: Path,
+    parallel: int,
+    on_outcome: Callable[[RunOutcome], None],
+    address: str | None = None,
+    max_retries: int = 3,
+) -> list[RunOutcome]:
+    """One Ray task per run (one GPU each where the cluster has GPUs). A task whose worker dies is
+    retried by Ray and resumes from the run's checkpoint; each run yields exactly one outcome."""
+    ray = import_ray()
+    started_here = not ray.is_initialized()
+    if started_here:
+        if address:
+            ray.init(address=address, log_to_driver=False)
+        else:
+            ray.init(num_cpus=parallel, include_dashboard=False, log_to_driver=False)
+    try:
+        gpus = ray.cluster_resources().get("GPU", 0)
+        task = ray.remote(execute_run).options(num_cpus=1, num_gpus=1 if gpus else 0, max_retries=max_retries)
+        pending = {task.remote(entry, str(Path(experiment_dir).resolve())): entry for entry in runs}
+        outcomes = []
+        while pending:
+            ready, _ = ray.wait(list(pending), num_returns=1)
+            entry = pending.pop(ready[0])
+            try:
+                outcome = ray.get(ready[0])
+            except Exception as err:  # noqa: BLE001 - retries exhausted: report the run, keep going
+                first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+                outcome = RunOutcome(
+                    entry.name, "failed", 0.0, str(log_path(experiment_dir, entry)), f"Ray task failed: {first}"
+                )
+            outcomes.append(outcome)
+            on_outcome(outcome)
+        return outcomes
+    finally:
+        if started_here:
+            ray.shutdown()
+
+
+def run_experiment(
+    experiment: Experiment,
+    executor: str = "local",
+    parallel: int | None = None,
+    ray_address: str | None = None,
+    on_outcome: Callable[[RunOutcome], None] = lambda outcome: None,
+) -> list[RunOutcome]:
+    """Run every unfinished run of the experiment; one outcome per run, in completion order."""
+    if executor not in EXECUTORS:
+        raise ConfigError(f"unknown executor '{executor}' (choose from {', '.join(EXECUTORS)})")
+    parallel = parallel or default_parallel()
+    if parallel < 1:
+        raise ConfigError(f"--parallel must be >= 1, got {parallel}")
+    directory = experiment.directory
+    skipped = [
+        RunOutcome(r.name, "skipped", 0.0, str(log_path(directory, r))) for r in experiment.runs if r.is_done(directory)
+    ]
+    for outcome in skipped:
+        on_outcome(outcome)
+    todo = [r for r in experiment.runs if not r.is_done(directory)]
+    if not todo:
+        return skipped
+    if executor == "ray":
+        return skipped + run_ray(todo, directory, parallel, on_outcome, address=ray_address)
+    return skipped + run_local(todo, directory, parallel, on_outcome)
