@@ -4,6 +4,8 @@
 PY ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
+# The PyPI lpips package with torchvision, apart from .venv: tests hold our LPIPS against it.
+LPIPS_REF := .venv-lpips-ref
 
 .PHONY: demo test lint setup
 
@@ -15,12 +17,15 @@ endif
 $(BIN)/liquidgs: pyproject.toml
 	bash scripts/setup.sh $(VENV) $(PY)
 
+$(LPIPS_REF)/installed: scripts/setup_lpips_reference.sh
+	bash scripts/setup_lpips_reference.sh $(LPIPS_REF) $(PY)
+
 setup: $(BIN)/liquidgs
 
 demo: $(BIN)/liquidgs
 	$(BIN)/liquidgs demo --out report
 
-test: $(BIN)/liquidgs
+test: $(BIN)/liquidgs $(LPIPS_REF)/installed
 	$(BIN)/ruff check src tests
 	$(BIN)/python -m pytest -q tests
 

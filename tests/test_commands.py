@@ -64,6 +64,22 @@ def test_eval_reproduces_the_final_training_evaluation(trained_run):
     assert len(per_view) == record["n_views"]
 
 
+def test_eval_says_plainly_when_lpips_vgg_is_unavailable(trained_run, tmp_path, capsys):
+    """No VGG weights anywhere: eval.json names LPIPS-VGG, the reason, and that no backbone stood in."""
+    no_weights = tmp_path / "no_weights"
+    no_weights.mkdir()
+    assert cli(["eval", "--run", str(trained_run), "--lpips-backbone", "vgg", "--lpips-weights", str(no_weights)]) == 0
+    record = json.loads((trained_run / "eval.json").read_text())
+    assert record["lpips"] is None and record["lpips_std"] is None
+    reason = record["lpips_unavailable"]
+    assert reason.startswith("LPIPS-VGG unavailable: backbone weights not found; looked for: ")
+    assert f"{no_weights / 'vgg16_features.pth'}, {no_weights / 'vgg16-397923af.pth'} " in reason
+    assert reason.endswith("; no other LPIPS backbone was used instead")
+    assert not any(key in record for key in ("lpips_backbone", "lpips_metric", "lpips_weights"))
+    assert all(view["lpips"] is None for view in json.loads((trained_run / "eval_per_view.json").read_text())["views"])
+    assert "(LPIPS-VGG unavailable: backbone weights not found" in capsys.readouterr().out
+
+
 def test_export_bakes_the_deltas_in(trained_run, tmp_path):
     out = tmp_path / "export"
     assert cli(["export", "--run", str(trained_run), "--out", str(out), "--time", "0.25", "--sequence", "3"]) == 0

@@ -20,6 +20,10 @@ def test_demo_writes_the_report(tmp_path, monkeypatch, capsys):
     for label in ("D-3DGS MLP", "Liquid CfC", "SDE-LNN"):
         assert f"| {label} |" in report
     assert "**final**" in report and "Fastest-moving test frame" in report
+    if LPIPS_DIR.is_dir():
+        assert "LPIPS: LPIPS-Alex, v0.1, inputs scaled to [-1,1] (the paper reports LPIPS-VGG" in report
+    else:
+        assert "LPIPS-Alex unavailable: backbone weights not found" in report
     side_by_side = np.asarray(Image.open(out / "side_by_side.png"))
     assert side_by_side.shape[:2] == (32, 4 * 32)  # ground truth | MLP | CfC | SDE-LNN
     assert len(imageio.mimread(out / "sweep.mp4")) == 48

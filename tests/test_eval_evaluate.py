@@ -66,7 +66,7 @@ def test_per_view_scores_and_summary_without_lpips():
     assert summary["psnr_std"] == pytest.approx(psnrs.std(ddof=1))
     assert summary["ssim_std"] > 0
     assert summary["lpips"] is None and summary["lpips_std"] is None
-    assert summary["lpips_unavailable"] == "no VGG weights"
+    assert summary["lpips_unavailable"] == "no VGG weights; no other LPIPS backbone was used instead"
     assert summary["n_views"] == 3
     assert summary["quantized_8bit"] is True
     assert not any(key.startswith("lpips_backbone") for key in summary)
@@ -81,7 +81,7 @@ def test_quantize_flag_changes_the_inputs():
     expected = psnr(noisy_render(0.02)(frames[0]).clamp(0, 1), frames[0].truth).item()
     assert raw[0]["psnr"] == pytest.approx(expected)
     assert summary["psnr_std"] == 0.0  # one view
-    assert summary["lpips_unavailable"] == "no LPIPS model was given"
+    assert summary["lpips_unavailable"] == "no LPIPS model was given; no other LPIPS backbone was used instead"
 
 
 def test_with_lpips_model_and_no_grad():
@@ -101,6 +101,7 @@ def test_with_lpips_model_and_no_grad():
         assert view["lpips"] == pytest.approx(expected, abs=1e-6)
     assert summary["lpips"] == pytest.approx(np.mean([view["lpips"] for view in per_view]))
     assert summary["lpips_backbone"] == "alex"
+    assert summary["lpips_metric"] == "LPIPS-Alex"
     assert summary["lpips_normalize"] is True
     assert summary["lpips_weights"] == str(LPIPS_DATA / "alexnet_features.pth")
     assert "lpips_unavailable" not in summary

@@ -105,6 +105,8 @@ def test_vgg_unavailable_names_what_was_looked_for(tmp_path, monkeypatch):
     with pytest.raises(LPIPSUnavailable) as caught:
         LPIPS("vgg")
     message = str(caught.value)
+    assert message.startswith("LPIPS-VGG unavailable: backbone weights not found; looked for: ")
+    assert caught.value.backbone == "vgg"
     assert str(tmp_path / "torch_home" / "hub" / "checkpoints" / "vgg16-397923af.pth") in message
     assert isinstance(caught.value, LiquidGSError)
 
@@ -147,7 +149,9 @@ def test_weights_of_another_backbone_are_rejected():
 
 def test_missing_lpips_package(monkeypatch):
     monkeypatch.setattr("liquidgs.eval.lpips.importlib.util.find_spec", lambda name: None)
-    with pytest.raises(LPIPSUnavailable, match="'lpips' is not installed"):
+    with pytest.raises(
+        LPIPSUnavailable, match="^LPIPS-Alex unavailable: lin-layer weights: .*'lpips' is not installed"
+    ):
         lin_weights_path("alex")
 
 

@@ -23,6 +23,7 @@ from rich.console import Console
 from liquidgs.atomic import write_text_atomic
 from liquidgs.data import DEFAULT_SYNTHETIC_SCENE, SYNTHETIC_SCENES, generate_synthetic, load_dataset
 from liquidgs.errors import ConfigError
+from liquidgs.eval.lpips import metric_name
 from liquidgs.media import to_uint8, write_png, write_video
 from liquidgs.train.config import preset_config
 from liquidgs.train.run import TrainedRun, load_run
@@ -109,10 +110,12 @@ def write_report(args: DemoArgs, runs: dict[str, Path], data_path: Path) -> Path
 
     final_mlp = results["mlp"]["final"]
     if final_mlp.get("lpips") is None:
-        lpips_desc = f"LPIPS unavailable: {final_mlp.get('lpips_unavailable', 'no weights')}"
+        lpips_desc = final_mlp["lpips_unavailable"]
     else:
         scaling = "inputs scaled to [-1,1]" if final_mlp.get("lpips_normalize") else "unnormalised inputs"
-        lpips_desc = f"LPIPS: {final_mlp.get('lpips_backbone')} backbone, v0.1, {scaling}"
+        lpips_desc = f"LPIPS: {metric_name(final_mlp['lpips_backbone'])}, v0.1, {scaling}"
+        if final_mlp["lpips_backbone"] != "vgg":
+            lpips_desc += " (the paper reports LPIPS-VGG: these LPIPS values are not comparable with its tables)"
     lines = [
         f"# liquidgs demo: {args.scene}",
         "",

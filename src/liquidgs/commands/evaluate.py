@@ -81,10 +81,15 @@ def evaluate_run(args: EvalArgs) -> dict:
 def main(argv: list[str]) -> int:
     args = tyro.cli(EvalArgs, args=argv, prog="liquidgs eval", description=__doc__)
     record = evaluate_run(args)
-    lp = record.get("lpips")
+    lpips_text = (
+        f"{record['lpips_metric']} {record['lpips']:.4f}"
+        if record["lpips"] is not None
+        else f"({record['lpips_unavailable']})"
+    )
     Console().print(
         f"{record['scene']} / {record['field']} @ {record['iteration']} ({record['split']}): "
-        f"PSNR {record['psnr']:.2f}  SSIM {record['ssim']:.4f}  LPIPS {lp if lp is None else round(lp, 4)} "
-        f"-> {args.run / 'eval.json'}"
+        f"PSNR {record['psnr']:.2f}  SSIM {record['ssim']:.4f}  {lpips_text} -> {args.run / 'eval.json'}",
+        highlight=False,
+        soft_wrap=True,
     )
     return 0

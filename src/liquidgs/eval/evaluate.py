@@ -46,7 +46,8 @@ def evaluate_views(
     Both images are clamped to [0, 1] (the reference saves them clamped) and, with
     ``quantize``, passed through the 8-bit PNG round trip the reference's metrics script
     sees. ``lpips=None`` leaves LPIPS out; ``lpips_error`` then says why (e.g. the message of
-    :class:`~liquidgs.eval.lpips.LPIPSUnavailable`) and lands in the summary.
+    :class:`~liquidgs.eval.lpips.LPIPSUnavailable`, "LPIPS-VGG unavailable: ...") and lands in
+    the summary, which also says that no other backbone stood in for it.
 
     Returns ``(summary, per_view)``: the summary holds psnr/ssim/lpips means with ``*_std``
     (sample std), ``n_views``, ``quantized_8bit`` and either the ``lpips_*`` description or
@@ -82,7 +83,9 @@ def evaluate_views(
         summary.update({f"lpips_{key}": value for key, value in lpips.describe().items()})
     else:
         summary["lpips"] = summary["lpips_std"] = None
-        summary["lpips_unavailable"] = lpips_error or "no LPIPS model was given"
+        # No backbone stands in for a missing one: a score of another backbone is not comparable.
+        reason = lpips_error or "no LPIPS model was given"
+        summary["lpips_unavailable"] = f"{reason}; no other LPIPS backbone was used instead"
     summary["n_views"] = len(per_view)
     summary["quantized_8bit"] = quantize
     return summary, per_view

@@ -44,11 +44,16 @@ _UNIT_EPS = 1e-10
 
 
 class LPIPSUnavailable(LiquidGSError):
-    """LPIPS cannot be computed (weights missing or unreadable); the message says why."""
+    """LPIPS cannot be computed (weights missing or unreadable); the message names the metric and says why."""
+
+    def __init__(self, backbone: str, reason: str):
+        super().__init__(f"{metric_name(backbone)} unavailable: {reason}")
+        self.backbone = backbone
 
 
 @dataclass(frozen=True)
 class _Backbone:
+    name: str  # how reports name the metric, e.g. LPIPS-VGG (the paper's)
     model: str  # torchvision's model name
     hub_file: str  # torchvision's checkpoint file name in the torch hub cache
     taps: tuple[int, ...]  # indices in ``features`` whose outputs LPIPS compares
@@ -56,14 +61,15 @@ class _Backbone:
 
 
 BACKBONES = {
-    "alex": _Backbone("alexnet", "alexnet-owt-7be5be79.pth", (1, 4, 7, 9, 11), (64, 192, 384, 256, 256)),
+    "alex": _Backbone("LPIPS-Alex", "alexnet", "alexnet-owt-7be5be79.pth", (1, 4, 7, 9, 11), (64, 192, 384, 256, 256)),
     "squeeze": _Backbone(
+        "LPIPS-Squeeze",
         "squeezenet1_1",
         "squeezenet1_1-b8a52dc0.pth",
         (1, 4, 7, 9, 10, 11, 12),
         (64, 128, 256, 384, 384, 512, 512),
     ),
-    "vgg": _Backbone("vgg16", "vgg16-397923af.pth", (3, 8, 15, 22, 29), (64, 128, 256, 512, 512)),
+    "vgg": _Backbone("LPIPS-VGG", "vgg16", "vgg16-397923af.pth", (3, 8, 15, 22, 29), (64, 128, 256, 512, 512)),
 }
 
 
@@ -141,6 +147,11 @@ def _check_backbone(backbone: str) -> _Backbone:
     return BACKBONES[backbone]
 
 
+def metric_name(backbone: str) -> str:
+    """The metric's name in reports (LPIPS-VGG, LPIPS-Alex, LPIPS-Squeeze)."""
+    return _check_backbone(backbone).name
+
+
 def _candidates(location: Path, spec: _Backbone) -> list[Path]:
     """The files a user-given location stands for: itself, or the known names inside a directory."""
     if location.is_dir():
@@ -163,15 +174,16 @@ def resolve_backbone_weights(backbone: str, weights: str | Path | None = None) -
         if env_value:
             location = Path(env_value).expanduser()
             if not location.exists():
-                raise LPIPSUnavailable(f"LPIPS {backbone} weights: ${WEIGHTS_ENV}={location} does not exist")
+                raise LPIPSUnavailable(backbone, f"backbone weights: ${WEIGHTS_ENV}={location} does not exist")
             searched += [(f"${WEIGHTS_ENV}", c) for c in _candidates(location, spec)]
         searched.append(("torch hub cache", Path(torch.hub.get_dir()) / "checkpoints" / spec.hub_file))
     for source, path in searched:
         if path.is_file():
             return path, source
     raise LPIPSUnavailable(
-        f"LPIPS {backbone} backbone weights not found; looked for: {', '.join(str(p) for _, p in searched)} "
-        f"(pass --lpips-weights or set ${WEIGHTS_ENV} to a file or folder with {spec.model}_features.pth)"
+        backbone,
+        f"backbone weights not found; looked for: {', '.join(str(p) for _, p in searched)} "
+        f"(pass --lpips-weights or set ${WEIGHTS_ENV} to a file or folder with {spec.model}_features.pth)",
     )
 
 
@@ -181,23 +193,24 @@ def lin_weights_path(backbone: str) -> Path:
     found = importlib.util.find_spec("lpips")
     if found is None or not found.submodule_search_locations:
         raise LPIPSUnavailable(
-            f"LPIPS lin-layer weights: the PyPI package 'lpips' is not installed "
-            f"(its file lpips/weights/v{LPIPS_VERSION}/{backbone}.pth is needed)"
+            backbone,
+            f"lin-layer weights: the PyPI package 'lpips' is not installed "
+            f"(its file lpips/weights/v{LPIPS_VERSION}/{backbone}.pth is needed)",
         )
     package_dir = Path(next(iter(found.submodule_search_locations)))
     path = package_dir / "weights" / f"v{LPIPS_VERSION}" / f"{backbone}.pth"
     if not path.is_file():
-        raise LPIPSUnavailable(f"LPIPS lin-layer weights: {path} does not exist")
+        raise LPIPSUnavailable(backbone, f"lin-layer weights: {path} does not exist")
     return path
 
 
-def _load_state_dict(path: Path, what: str) -> dict[str, torch.Tensor]:
+def _load_state_dict(path: Path, backbone: str, what: str) -> dict[str, torch.Tensor]:
     try:
         state = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # any failure to read the file means the same thing to the user
-        raise LPIPSUnavailable(f"{what}: cannot read {path}: {type(exc).__name__}: {exc}") from exc
+        raise LPIPSUnavailable(backbone, f"{what}: cannot read {path}: {type(exc).__name__}: {exc}") from exc
     if not isinstance(state, dict) or not all(isinstance(v, torch.Tensor) for v in state.values()):
-        raise LPIPSUnavailable(f"{what}: {path} is not a state dict of tensors")
+        raise LPIPSUnavailable(backbone, f"{what}: {path} is not a state dict of tensors")
     return state
 
 
@@ -228,19 +241,19 @@ class LPIPS(nn.Module):
         self.lin_path = lin_weights_path(backbone)
 
         self.features = _FEATURE_BUILDERS[backbone]()
-        what = f"LPIPS {backbone} backbone weights"
-        state = _load_state_dict(self.weights_path, what)
+        what = "backbone weights"
+        state = _load_state_dict(self.weights_path, backbone, what)
         # Full torchvision checkpoints also hold the classifier; only ``features.*`` is used.
         prefix = "features."
         features_state = {k.removeprefix(prefix): v for k, v in state.items() if k.startswith(prefix)}
         self._load_into(self.features, features_state, self.weights_path, what)
 
         self.lins = nn.ModuleList(nn.Conv2d(c, 1, kernel_size=1, bias=False) for c in spec.channels)
-        lin_state = _load_state_dict(self.lin_path, f"LPIPS {backbone} lin-layer weights")
+        lin_state = _load_state_dict(self.lin_path, backbone, "lin-layer weights")
         # The lpips package names them lin<k>.model.1.weight (index 0 is a dropout).
         lin_state = {f"{k}.weight": lin_state.get(f"lin{k}.model.1.weight") for k in range(len(self.lins))}
         lin_state = {k: v for k, v in lin_state.items() if v is not None}
-        self._load_into(self.lins, lin_state, self.lin_path, f"LPIPS {backbone} lin-layer weights")
+        self._load_into(self.lins, lin_state, self.lin_path, "lin-layer weights")
 
         self.register_buffer("shift", torch.tensor(_SHIFT).view(1, 3, 1, 1))
         self.register_buffer("scale", torch.tensor(_SCALE).view(1, 3, 1, 1))
@@ -248,8 +261,7 @@ class LPIPS(nn.Module):
         self.eval()
         self.to(device)
 
-    @staticmethod
-    def _load_into(module: nn.Module, state: dict[str, torch.Tensor], path: Path, what: str) -> None:
+    def _load_into(self, module: nn.Module, state: dict[str, torch.Tensor], path: Path, what: str) -> None:
         """Load ``state`` strictly, or say in one line how the file differs from the network."""
         expected = module.state_dict()
         problems = []
@@ -265,7 +277,7 @@ class LPIPS(nn.Module):
             if state[key].shape != expected[key].shape
         ]
         if problems:
-            raise LPIPSUnavailable(f"{what}: {path} does not fit the network: {'; '.join(problems[:3])}")
+            raise LPIPSUnavailable(self.backbone, f"{what}: {path} does not fit the network: {'; '.join(problems[:3])}")
         module.load_state_dict(state)
 
     def _tapped_features(self, x: torch.Tensor) -> list[torch.Tensor]:
@@ -296,6 +308,7 @@ class LPIPS(nn.Module):
         """What results.json records about this metric."""
         return {
             "backbone": self.backbone,
+            "metric": metric_name(self.backbone),
             "version": LPIPS_VERSION,
             "normalize": self.normalize,
             "input_range": "[0,1] mapped to [-1,1]"
