@@ -261,6 +261,8 @@ def test_seeds_are_aggregated_as_mean_and_std_and_the_noise_study_is_built(hand_
     assert f"**{statistics.mean(mean_sde0):.2f} ± {statistics.stdev(mean_sde0):.2f}**" in text.split("## Noise")[1]
     noise = text.split("## Noise study")[1].split("##")[0]
     assert noise.index("SDE-LNN (lambda 0)") < noise.index("SDE-LNN (lambda 0.1)")
+    assert "| lambda | dnerf (2 scenes) PSNR |" in noise
+    assert "\\multicolumn{3}{c}{dnerf (2 scenes)}" in (hand_built / "report" / "tables.tex").read_text()
     assert (hand_built / "report" / "noise_study.png").stat().st_size > 1000
     assert "error bars: std over seeds" in text
     assert "LPIPS-vgg v0.1, [0,1] inputs fed as [-1,1]" in text

@@ -52,7 +52,8 @@ class DatasetScores:
             scores = run.evaluation(evaluation)
             for metric in METRICS:
                 if scores.get(metric.key) is not None:
-                    values.setdefault((run.method, run.entry.scene, metric.key), {})[run.entry.seed] = scores[metric.key]
+                    per_seed = values.setdefault((run.method, run.entry.scene, metric.key), {})
+                    per_seed[run.entry.seed] = scores[metric.key]
         planned = {Method.of(r.field, r.lambda_) for r in collection.experiment.runs if r.dataset == dataset}
         return cls(dataset, collection.scenes(dataset), sorted(planned), values, runs)
 
@@ -177,4 +178,5 @@ def lpips_description(runs: list[RunRecord], evaluation: str) -> str:
             kinds.add(f"LPIPS-{backbone} v{version}, {inputs}")
     if not kinds:
         return "LPIPS: no finished runs"
-    return "LPIPS: " + ("; ".join(sorted(kinds)) if len(kinds) == 1 else "MIXED across runs: " + "; ".join(sorted(kinds)))
+    listed = "; ".join(sorted(kinds))
+    return "LPIPS: " + (listed if len(kinds) == 1 else "MIXED across runs: " + listed)

@@ -13,7 +13,6 @@ from liquidgs.data import load_dataset
 from liquidgs.errors import LiquidGSError
 from liquidgs.experiments.report.aggregate import DatasetScores
 from liquidgs.experiments.report.collect import Method, RunRecord
-from liquidgs.experiments.report.references import MEAN
 from liquidgs.experiments.spec import PAPER_LAMBDA
 from liquidgs.media import labelled, to_uint8, write_png
 from liquidgs.train.run import load_run
@@ -103,8 +102,10 @@ def qualitative_figure(
     gains = []
     for scene in scores.scenes:
         a, b = scores.cell(mlp, scene, "psnr"), scores.cell(sde, scene, "psnr")
-        if a is not None and b is not None and scene != MEAN:
+        if a is not None and b is not None:
             gains.append((b.mean - a.mean, scene))
+    if not gains:
+        return [], [f"no scene has finished runs of both {mlp.label} and {sde.label}"]
     gains.sort(reverse=True)
     rows, images, skipped = [], [], []
     for gain, scene in gains:
@@ -143,7 +144,8 @@ def _scene_row(scene: str, gain: float, seed: int, mlp: RunRecord, sde: RunRecor
     renders = []
     for record in (mlp, sde):
         run = load_run(record.folder, device)
-        renders.append(to_uint8(run.render(frame.viewmat, frame.K, frame.width, frame.height, frame.time, background).rgb))
+        rendered = run.render(frame.viewmat, frame.K, frame.width, frame.height, frame.time, background)
+        renders.append(to_uint8(rendered.rgb))
     errors = [np.abs(r.astype(np.float64) - truth).mean(axis=-1) / 255.0 for r in renders]
     side = max(1, int(min(truth.shape[:2]) * CROP_FRACTION))
     x, y = crop_window(errors[1] - errors[0], side)

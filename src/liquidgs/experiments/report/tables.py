@@ -75,6 +75,8 @@ class Table:
     signed: bool = False
     """Differences: print an explicit sign."""
     row_header: str = "Method"
+    latex_row_header: str | None = None
+    """Default: row_header."""
     group_titles: dict[str, str] = field(default_factory=dict)
 
     def title(self, group: str) -> str:
@@ -167,7 +169,8 @@ def to_latex(table: Table) -> str:
             for j, g in enumerate(block)
         ]
         lines.append("& " + " & ".join(heads) + "\\\\")
-        lines.append(table.row_header + " & " + " & ".join(m.latex_title for _ in block for m in table.metrics) + "\\\\")
+        titles = [m.latex_title for _ in block for m in table.metrics]
+        lines.append(" & ".join([table.latex_row_header or table.row_header, *titles]) + "\\\\")
         lines.append("\\midrule")
         for i, row in enumerate(table.rows):
             cells = [row.latex_label]
@@ -201,7 +204,8 @@ def differences(table: Table, caption: str, latex_caption: str, label: str) -> T
     if not rows:
         return None
     return Table(table.groups, table.metrics, rows, caption, latex_caption, label, colours=0, signed=True,
-                 row_header=table.row_header, group_titles=table.group_titles)  # fmt: skip
+                 row_header=table.row_header, latex_row_header=table.latex_row_header,
+                 group_titles=table.group_titles)  # fmt: skip
 
 
 @dataclass

@@ -198,14 +198,14 @@ def _noise_section(collection: Collection, evaluation: str, references: bool, ou
         "per-seed dataset means; a mean needs every scene finished. Best per column in **bold**.",
         f"Noise-level study: dataset-mean metrics per $\\lambda$, {EVALUATION_TEXT[evaluation]}; {lpips}. "
         "\\colorbox{red!60}{best} per column.".replace("_", "\\_"),
-        "tab:noise-study", colours=1, row_header="$\\lambda$",
+        "tab:noise-study", colours=1, row_header="lambda", latex_row_header="$\\lambda$",
         group_titles={d: f"{d} ({len(s.scenes)} scenes)" for d, (s, _) in studies.items()},
     )  # fmt: skip
     md += ["## Noise study", "", to_markdown(table)]
     tex.append(to_latex(table))
     if references:
-        diff = differences(table, "**Noise study: ours - paper** (dataset means).", "Noise study: ours minus the paper.",
-                           "tab:noise-study-differences")  # fmt: skip
+        caption = "**Noise study: ours - paper** (dataset means)."
+        diff = differences(table, caption, "Noise study: ours minus the paper.", "tab:noise-study-differences")
         if diff is not None:
             md.append(to_markdown(diff))
     curves = {d: mean_psnr_curve(s, sde) for d, (s, sde) in studies.items()}
