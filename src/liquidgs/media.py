@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from PIL import Image
+from PIL import Image, ImageDraw
 
 from liquidgs.atomic import write_atomic
 
@@ -26,6 +26,15 @@ def depth_to_uint8(depth: torch.Tensor, alpha: torch.Tensor | None = None) -> np
         lo, hi = d[mask].min(), d[mask].max()
         out[mask] = 1.0 - (d[mask] - lo) / (hi - lo).clamp_min(1e-8) * 0.8
     return (out * 255 + 0.5).to(torch.uint8).numpy()
+
+
+def labelled(image: np.ndarray, text: str) -> np.ndarray:
+    """The image with `text` in white on a black box at its top-left corner."""
+    canvas = Image.fromarray(image)
+    draw = ImageDraw.Draw(canvas)
+    draw.rectangle([0, 0, 7 * len(text) + 6, 14], fill=(0, 0, 0))
+    draw.text((3, 2), text, fill=(255, 255, 255))
+    return np.asarray(canvas)
 
 
 def write_png(path: str | Path, image: torch.Tensor | np.ndarray) -> Path:

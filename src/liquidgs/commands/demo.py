@@ -17,14 +17,13 @@ from pathlib import Path
 import numpy as np
 import torch
 import tyro
-from PIL import Image, ImageDraw
 from rich.console import Console
 
 from liquidgs.atomic import write_text_atomic
 from liquidgs.data import DEFAULT_SYNTHETIC_SCENE, SYNTHETIC_SCENES, generate_synthetic, load_dataset
 from liquidgs.errors import ConfigError
 from liquidgs.eval.lpips import metric_name
-from liquidgs.media import to_uint8, write_png, write_video
+from liquidgs.media import labelled, to_uint8, write_png, write_video
 from liquidgs.train.config import preset_config
 from liquidgs.train.run import TrainedRun, load_run
 from liquidgs.train.trainer import data_config
@@ -71,14 +70,6 @@ def fastest_moving_frame(run: TrainedRun, frames) -> int:
             step = run.at_time(t1).means - run.at_time(t0).means
             speeds.append(float(step.norm(dim=-1).mean()) / max(t1 - t0, 1e-9))
     return int(np.argmax(speeds))
-
-
-def labelled(image: np.ndarray, text: str) -> np.ndarray:
-    canvas = Image.fromarray(image)
-    draw = ImageDraw.Draw(canvas)
-    draw.rectangle([0, 0, 7 * len(text) + 6, 14], fill=(0, 0, 0))
-    draw.text((3, 2), text, fill=(255, 255, 255))
-    return np.asarray(canvas)
 
 
 def write_report(args: DemoArgs, runs: dict[str, Path], data_path: Path) -> Path:

@@ -1,0 +1,168 @@
+"""Reading an experiment folder: the manifest, then each run's config.yml, results.json and per_view.json.
+
+A run counts as finished only when its results.json exists (the trainer writes it last,
+atomically); every other planned run is listed as missing, never silently dropped.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+from liquidgs.errors import LiquidGSError
+from liquidgs.experiments.plan import Experiment, RunEntry, read_manifest
+from liquidgs.train.config import FIELDS, TrainConfig, load_yaml
+from liquidgs.train.trainer import CONFIG, PER_VIEW, RESULTS
+
+EVALUATIONS = ("final", "best_of")
+SCORE_KEYS = ("psnr", "ssim")
+COST_KEYS = ("fps", "num_gaussians", "field_parameters", "field_flops_per_gaussian", "train_seconds", "peak_memory_mb")
+FIELD_LABELS = {"static": "Static", "mlp": "D-3DGS (MLP)", "cfc": "Liquid CfC", "sde": "SDE-LNN"}
+
+
+@dataclass(frozen=True, order=True)
+class Method:
+    """A table row: a field, and for the sde field its noise level."""
+
+    field_rank: int
+    lambda_: float
+
+    @classmethod
+    def of(cls, field: str, lambda_: float) -> Method:
+        return cls(FIELDS.index(field), lambda_ if field == "sde" else 0.0)
+
+    @property
+    def field(self) -> str:
+        return FIELDS[self.field_rank]
+
+    @property
+    def label(self) -> str:
+        base = FIELD_LABELS[self.field]
+        return f"{base} (lambda {self.lambda_:g})" if self.field == "sde" else base
+
+    @property
+    def latex_label(self) -> str:
+        base = FIELD_LABELS[self.field]
+        return f"{base} ($\\lambda{{=}}{self.lambda_:g}$)" if self.field == "sde" else base
+
+
+@dataclass(frozen=True)
+class RunRecord:
+    entry: RunEntry
+    folder: Path
+    config: TrainConfig
+    results: dict
+    per_view: dict | None
+    """None when the run folder has no per_view.json."""
+
+    @property
+    def method(self) -> Method:
+        return Method.of(self.entry.field, self.entry.lambda_)
+
+    def evaluation(self, which: str) -> dict:
+        return self.results[which]
+
+
+@dataclass(frozen=True)
+class Collection:
+    experiment: Experiment
+    finished: tuple[RunRecord, ...]
+    missing: tuple[RunEntry, ...]
+
+    def datasets(self) -> list[str]:
+        return list(dict.fromkeys(run.dataset for run in self.experiment.runs))
+
+    def scenes(self, dataset: str) -> list[str]:
+        return list(dict.fromkeys(run.scene for run in self.experiment.runs if run.dataset == dataset))
+
+    def runs(self, dataset: str) -> list[RunRecord]:
+        return [r for r in self.finished if r.entry.dataset == dataset]
+
+
+def _read_json(path: Path, what: str) -> dict:
+    try:
+        raw = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, ValueError) as err:
+        raise LiquidGSError(f"{path}: corrupt or unreadable {what} ({err})") from None
+    if not isinstance(raw, dict):
+        raise LiquidGSError(f"{path}: corrupt {what} (not a JSON object)")
+    return raw
+
+
+def _number(value) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _check_results(path: Path, results: dict) -> None:
+    """Every field the report reads, so a damaged file fails here with its name, not mid-report."""
+    for which in EVALUATIONS:
+        evaluation = results.get(which)
+        if not isinstance(evaluation, dict):
+            raise LiquidGSError(f"{path}: field '{which}' is missing or not an object")
+        for key in SCORE_KEYS:
+            if not _number(evaluation.get(key)):
+                raise LiquidGSError(f"{path}: field '{which}.{key}' is missing or not a finite number")
+        if evaluation.get("lpips") is not None and not _number(evaluation["lpips"]):
+            raise LiquidGSError(f"{path}: field '{which}.lpips' is not a number")
+    for key in COST_KEYS:
+        if not _number(results.get(key)):
+            raise LiquidGSError(f"{path}: field '{key}' is missing or not a finite number")
+
+
+def _check_views(path: Path, per_view: dict) -> None:
+    views = per_view.get("views")
+    if not isinstance(views, list) or not all(
+        isinstance(v, dict) and isinstance(v.get("name"), str) and _number(v.get("psnr")) for v in views
+    ):
+        raise LiquidGSError(f"{path}: field 'views' must be a list of {{name, psnr, ...}} records")
+
+
+def _check_matches(path: Path, entry: RunEntry, config: TrainConfig) -> None:
+    """The folder must hold the run the manifest planned, or its numbers land in the wrong row."""
+    found = (config.field, config.seed, config.resolved_lambda() if config.field == "sde" else 0.0)
+    planned = (entry.field, entry.seed, entry.lambda_ if entry.field == "sde" else 0.0)
+    if found != planned:
+        raise LiquidGSError(
+            f"{path}: holds field/seed/lambda {found}, but the manifest plans {planned} for {entry.name} here"
+        )
+
+
+def read_run(experiment_dir: Path, entry: RunEntry) -> RunRecord | None:
+    """The finished run, or None while it has no results.json."""
+    folder = entry.folder(experiment_dir)
+    results_path = folder / RESULTS
+    if not results_path.is_file():
+        return None
+    config_path = folder / CONFIG
+    if not config_path.is_file():
+        raise LiquidGSError(f"{folder}: has {RESULTS} but no {CONFIG}")
+    config = load_yaml(config_path)
+    _check_matches(config_path, entry, config)
+    results = _read_json(results_path, RESULTS)
+    _check_results(results_path, results)
+    per_view_path = folder / PER_VIEW
+    per_view = None
+    if per_view_path.is_file():
+        per_view = _read_json(per_view_path, PER_VIEW)
+        _check_views(per_view_path, per_view)
+    return RunRecord(entry, folder, config, results, per_view)
+
+
+def collect(experiment_dir: str | Path) -> Collection:
+    experiment_dir = Path(experiment_dir)
+    experiment = read_manifest(experiment_dir)
+    finished: list[RunRecord] = []
+    missing: list[RunEntry] = []
+    seen: set[str] = set()
+    for entry in experiment.runs:
+        if entry.run_dir in seen:  # a hand-edited manifest listing a run twice: count it once
+            continue
+        seen.add(entry.run_dir)
+        record = read_run(experiment_dir, entry)
+        if record is None:
+            missing.append(entry)
+        else:
+            finished.append(record)
+    return Collection(experiment, tuple(finished), tuple(missing))

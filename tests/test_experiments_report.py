@@ -1,0 +1,310 @@
+"""The experiment report: the paper's colouring, a report over real runs, seed and noise aggregation, bad input."""
+
+from __future__ import annotations
+
+import json
+import re
+import shutil
+import statistics
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from liquidgs.commands.train import main as train_main
+from liquidgs.data import generate_synthetic
+from liquidgs.errors import LiquidGSError
+from liquidgs.experiments import Experiment, RunEntry, expand, spec_from_dict, write_manifest
+from liquidgs.experiments.report import write_report
+from liquidgs.experiments.report.figures import PANEL, crop_window
+from liquidgs.experiments.report.references import paper_targets
+from liquidgs.experiments.report.tables import METRICS, Cell, Row, Table, to_latex
+from liquidgs.train.config import preset_config, save_yaml
+
+SHARED = Path(__file__).resolve().parents[2] / "shared"
+PAPER = SHARED / "paper" / "000_90a69819efc025de.txt"
+TARGETS = SHARED / "paper" / "targets.json"
+LPIPS_DIR = SHARED / "data" / "lpips"
+RANK_BY_NAME = {"best": 0, "second": 1, "third": 2}
+RANK_BY_COLOUR = {"red!60": 0, "orange!57": 1, "yellow!55": 2}
+needs_paper = pytest.mark.skipif(not PAPER.is_file(), reason="the paper's source (../shared/paper) is not here")
+
+
+# ------------------------------------------------------------------ parsing coloured LaTeX tables
+def parse_cell(text: str) -> tuple[int | None, float]:
+    """A cell as (rank or None, value), from the paper's \\best{..} macros or our \\cellcolor{..}."""
+    text = text.strip()
+    if m := re.fullmatch(r"\\(best|second|third)\{(.*)\}", text):
+        return RANK_BY_NAME[m[1]], float(m[2])
+    if m := re.fullmatch(r"\\cellcolor\{([^}]*)\}(.*)", text):
+        return RANK_BY_COLOUR[m[1]], float(m[2].split("$")[0])
+    return None, float(text.split("$")[0])
+
+
+def parse_blocks(tex: str) -> list[tuple[list[str], list[tuple[str, list[tuple[int | None, float]]]]]]:
+    """Each block of a tabular: its group titles and its rows (label, cells)."""
+    blocks = []
+    for line in tex.splitlines():
+        line = line.strip()
+        if "\\multicolumn" in line:
+            blocks.append((re.findall(r"\\multicolumn\{\d+\}\{[^}]*\}\{([^}]*)\}", line), []))
+        elif blocks and "&" in line and line.endswith("\\\\") and not line.startswith(("Method", "$\\lambda$")):
+            label, *cells = line[:-2].split("&")
+            blocks[-1][1].append((label.strip(), [parse_cell(c) for c in cells]))
+    return blocks
+
+
+def scene_key(title: str) -> str:
+    return re.sub(r"[^a-z]", "", title.lower())
+
+
+def colouring(tex: str, methods: dict[str, dict[str, list[float]]]) -> dict[tuple[str, str, str], int]:
+    """(method, scene, metric) -> rank for every coloured cell; rows are identified by their numbers."""
+    out = {}
+    for titles, rows in parse_blocks(tex):
+        scenes = [scene_key(t) for t in titles]
+        for _, cells in rows:
+            values = {s: [v for _, v in cells[3 * i : 3 * i + 3]] for i, s in enumerate(scenes)}
+            [method] = [name for name, per in methods.items() if all(per[s] == values[s] for s in scenes)]
+            for i, scene in enumerate(scenes):
+                for j, metric in enumerate(("psnr", "ssim", "lpips")):
+                    rank = cells[3 * i + j][0]
+                    if rank is not None:
+                        out[(method, scene, metric)] = rank
+    return out
+
+
+def paper_table(label: str) -> str:
+    source = PAPER.read_text()
+    start = source.index(f"\\label{{{label}}}")
+    return source[start : source.index("\\end{tabular}", start)]
+
+
+@needs_paper
+@pytest.mark.parametrize(("label", "key"), [("tab:dnerf", "dnerf_table"), ("tab:nerfds", "nerfds_table")])
+def test_colouring_matches_the_papers_tables(label, key):
+    table = json.loads(TARGETS.read_text())[key]
+    methods = table["methods"]
+    expected = colouring(paper_table(label), methods)
+    rows = [Row(name, name, {(s, m.key): Cell(v[i]) for s, v in per.items() for i, m in enumerate(METRICS)})
+            for name, per in methods.items()]  # fmt: skip
+    ours = to_latex(Table(list(table["scenes"]), METRICS, rows, "", "", label))
+    assert len(expected) >= 3 * len(table["scenes"]) * 3 - 5  # the parse found the coloured cells
+    assert colouring(ours, methods) == expected
+
+
+@needs_paper
+def test_noise_study_colouring_matches_the_papers_table_iv():
+    study = json.loads(TARGETS.read_text())["noise_study_means"]
+    lambdas = [k for k in study if k != "columns"]
+    rows = [Row(lam, lam, {(d, m.key): Cell(study[lam][3 * g + i]) for g, d in enumerate(("dnerf", "nerfds"))
+                           for i, m in enumerate(METRICS)}) for lam in lambdas]  # fmt: skip
+    ours = to_latex(Table(["dnerf", "nerfds"], METRICS, rows, "", "", "tab:abl", colours=1, row_header="$\\lambda$"))
+
+    def best_cells(tex: str) -> set[tuple[str, int]]:
+        [(_, parsed)] = parse_blocks(tex)
+        return {(label, i) for label, cells in parsed for i, (rank, _) in enumerate(cells) if rank == 0}
+
+    expected = best_cells(paper_table("tab:abl"))
+    assert len(expected) == 8  # the two tied 38.28s and 0.9856s both best, as printed
+    assert best_cells(ours) == expected
+
+
+@pytest.mark.skipif(not TARGETS.is_file(), reason="../shared/paper/targets.json is not here")
+def test_shipped_targets_are_the_shared_numbers():
+    shipped = {k: v for k, v in paper_targets().items() if k != "_source"}
+    assert shipped == json.loads(TARGETS.read_text())
+    assert "targets.json" in paper_targets()["_source"]
+
+
+# ------------------------------------------------------------------ a small real experiment
+FAST = {
+    "iterations": 24, "warmup": 6, "init_points": 400, "sh_interval": 10, "densify.start": 6,
+    "densify.interval": 6, "densify.opacity_reset_interval": 15, "eval.start": 8, "eval.every": 8,
+    "eval.fps_frames": 2, "checkpoint_every": 12,
+}  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def experiment(tmp_path_factory) -> Path:
+    """2 scenes (named like D-NeRF scenes, so references apply) x mlp / sde, tiny preset, 24 iterations."""
+    if LPIPS_DIR.is_dir():
+        mp = pytest.MonkeyPatch()
+        mp.setenv("LIQUIDGS_LPIPS_WEIGHTS", str(LPIPS_DIR))
+    root = tmp_path_factory.mktemp("report")
+    for scene, synthetic in (("hook", "puppet"), ("lego", "spinner")):
+        generated = generate_synthetic(synthetic, root / "gen" / scene, size=32, frames=20, seed=3)
+        shutil.copytree(Path(generated) / "dnerf", root / "data" / "dnerf" / scene)
+    spec = spec_from_dict({"name": "small", "dataset": "dnerf", "preset": "tiny", "scenes": ["hook", "lego"],
+                           "fields": ["mlp", "sde"], "overrides": FAST}, "test")  # fmt: skip
+    directory = root / "exp"
+    plan = expand(spec, root / "data", directory)
+    write_manifest(plan)
+    for run in plan.runs:
+        assert train_main([*run.train_args, "--out", str(run.folder(directory))]) == 0
+    if LPIPS_DIR.is_dir():
+        mp.undo()
+    return directory
+
+
+def results_of(directory: Path) -> list[dict]:
+    return [json.loads(p.read_text()) for p in sorted(directory.rglob("results.json"))]
+
+
+def test_report_holds_every_runs_final_numbers_and_the_figure(experiment, tmp_path):
+    report = write_report(experiment, tmp_path / "final")
+    text, tex = report.read_text(), (tmp_path / "final" / "tables.tex").read_text()
+    runs = results_of(experiment)
+    assert len(runs) == 4
+    for res in runs:
+        for key, digits in (("psnr", 2), ("ssim", 4)):
+            assert f"{res['final'][key]:.{digits}f}" in text
+            assert f"{res['final'][key]:.{digits}f}" in tex
+        assert f"{res['field_parameters']:,}" in text
+    assert "final evaluation" in text and "best-of" not in text.split("## Per-scene")[1].split("##")[0]
+    lpips = runs[0]["final"]
+    assert (f"LPIPS-{lpips['lpips_backbone']}" if lpips["lpips"] is not None else "LPIPS: unavailable") in text
+    assert "\\cellcolor{red!60}" in tex and "\\toprule" in tex and "\\multicolumn{3}{c|}{Hook}" in tex
+    # one seed: no measured spread, the paper's sigma instead, said so
+    assert "no spread can be measured" in text and "0.05 dB" in text
+    assert re.search(r"Dataset mean: .* leads with .* this is a (tie|lead)\.", text)
+    assert "None: every planned run finished." in text
+    assert "## Noise study" not in text  # one lambda
+    figure = tmp_path / "final" / "qualitative_dnerf.png"
+    width, height = Image.open(figure).size
+    assert (width, height) == (3 * PANEL, 2 * PANEL)  # both scenes have an MLP / SDE-LNN pair
+    assert "![ground truth | MLP | SDE-LNN](qualitative_dnerf.png)" in text
+    assert len(re.findall(r"^- \([ab]\) (hook|lego): [+-]\d+\.\d\d dB on the scene", text, re.M)) == 2
+
+
+def test_best_of_report_uses_the_best_of_numbers(experiment, tmp_path):
+    text = write_report(experiment, tmp_path, evaluation="best_of").read_text()
+    for res in results_of(experiment):
+        assert f"{res['best_of']['psnr']:.2f}" in text
+    assert "best-of evaluation" in text
+
+
+def test_reference_rows_and_differences(experiment, tmp_path):
+    text = write_report(experiment, tmp_path, references=True).read_text()
+    tex = (tmp_path / "tables.tex").read_text()
+    hook_mlp = paper_targets()["dnerf_table"]["methods"]["D-3DGS (MLP)"]["hook"][0]
+    assert f"| Paper: D-3DGS (MLP) | {hook_mlp:.2f} |" in text and "Paper: SDE-LNN" in tex
+    ours = next(r for r in results_of(experiment) if r["field"] == "mlp" and "hook" in r["data"])
+    assert f"| D-3DGS (MLP) − Paper: D-3DGS (MLP) | {ours['final']['psnr'] - hook_mlp:+.2f} |" in text
+    published = paper_targets()["d3dgs_published"]["dnerf"]["hook"][0]
+    assert f"{ours['final']['psnr'] - published:+.2f}" in text
+    assert "printed reference means cover other scenes" in text  # 2 of 8 scenes: no mean compared
+
+
+def test_missing_runs_are_listed_and_each_run_counted_once(experiment, tmp_path):
+    copy = tmp_path / "exp"
+    shutil.copytree(experiment, copy, ignore=shutil.ignore_patterns("report", "tensorboard"))
+    manifest = json.loads((copy / "experiment.json").read_text())
+    manifest["runs"].append(manifest["runs"][0])  # listed twice
+    (copy / "experiment.json").write_text(json.dumps(manifest))
+    gone = manifest["runs"][3]
+    (copy / gone["run_dir"] / "results.json").unlink()
+    text = write_report(copy).read_text()
+    assert "3 of 4 planned runs finished; 1 missing" in text
+    assert f"`{gone['run_dir']}`" in text.split("## Missing runs")[1]
+
+
+def test_crop_window_finds_the_region_where_errors_differ():
+    improvement = np.zeros((32, 32))
+    improvement[20:28, 4:12] = -1.0  # SDE-LNN better there
+    assert crop_window(improvement, 8) == (4, 20)
+
+
+# ------------------------------------------------------------------ hand-built results: seeds and noise study
+def fake_results(psnr: float, ssim: float, lpips: float) -> dict:
+    scores = {"psnr": psnr, "ssim": ssim, "lpips": lpips, "lpips_backbone": "vgg", "lpips_version": "0.1",
+              "lpips_normalize": False}  # fmt: skip
+    return {"final": scores, "best_of": {**scores, "psnr": psnr + 0.5}, "fps": 100.0, "num_gaussians": 1000,
+            "field_parameters": 5000, "field_flops_per_gaussian": 9000, "train_seconds": 10.0,
+            "peak_memory_mb": 300.0, "peak_memory_kind": "process_peak_rss", "device": "cpu",
+            "resolution": [32, 32]}  # fmt: skip
+
+
+def fake_psnr(scene: str, field: str, lam: float, seed: int) -> float:
+    return 30.0 + (scene == "lego") * 2 + (field == "sde") * (1.0 - 4 * lam) + 0.1 * seed
+
+
+@pytest.fixture
+def hand_built(tmp_path) -> Path:
+    """dnerf: hook, lego x (mlp, sde at lambda 0 / 0.05 / 0.1) x seeds 0-2, results written by hand."""
+    directory, data = tmp_path / "exp", tmp_path / "data"
+    data.mkdir()
+    runs = []
+    for scene in ("hook", "lego"):
+        for field, lam in (("mlp", 0.0), ("sde", 0.0), ("sde", 0.05), ("sde", 0.1)):
+            for seed in (0, 1, 2):
+                run_dir = f"dnerf/{scene}/{field}/l{lam}-s{seed}"
+                runs.append(RunEntry("dnerf", scene, field, lam, seed, "tiny", str(data), run_dir, ()))
+                cfg = preset_config("tiny", data)
+                cfg.field, cfg.seed, cfg.lambda_ = field, seed, lam
+                save_yaml(cfg, directory / run_dir / "config.yml")
+                psnr = fake_psnr(scene, field, lam, seed)
+                (directory / run_dir / "results.json").write_text(json.dumps(fake_results(psnr, 0.9, 0.1)))
+    write_manifest(Experiment({"name": "hand"}, str(data), directory, tuple(runs)))
+    return directory
+
+
+def test_seeds_are_aggregated_as_mean_and_std_and_the_noise_study_is_built(hand_built):
+    text = write_report(hand_built).read_text()
+    hook_mlp = [fake_psnr("hook", "mlp", 0.0, s) for s in (0, 1, 2)]
+    assert f"{statistics.mean(hook_mlp):.2f} ± {statistics.stdev(hook_mlp):.2f}" in text
+    assert "| hook | D-3DGS (MLP) | 3 | 30.00-30.20 | 0.100 |" in text
+    assert "measured here" in text and "no spread can be measured" not in text
+    # the dataset mean's spread is over the per-seed dataset means
+    mean_sde0 = [statistics.mean(fake_psnr(s, "sde", 0.0, seed) for s in ("hook", "lego")) for seed in (0, 1, 2)]
+    assert f"**{statistics.mean(mean_sde0):.2f} ± {statistics.stdev(mean_sde0):.2f}**" in text.split("## Noise")[1]
+    noise = text.split("## Noise study")[1].split("##")[0]
+    assert noise.index("SDE-LNN (lambda 0)") < noise.index("SDE-LNN (lambda 0.1)")
+    assert "| lambda | dnerf (2 scenes) PSNR |" in noise
+    assert "\\multicolumn{3}{c}{dnerf (2 scenes)}" in (hand_built / "report" / "tables.tex").read_text()
+    assert (hand_built / "report" / "noise_study.png").stat().st_size > 1000
+    assert "error bars: std over seeds" in text
+    assert "LPIPS-vgg v0.1, [0,1] inputs fed as [-1,1]" in text
+    # sde at lambda 0 leads mlp by 1 dB, far above 2 sigma (0.2 dB): a lead, not a tie
+    assert re.search(r"Dataset mean: SDE-LNN \(lambda 0\) leads .* this is a lead\.", text)
+    assert "Figure skipped: " in text or "skipped: " in text  # no per_view.json in the hand-built runs
+    best_of = write_report(hand_built, evaluation="best_of").read_text()
+    assert f"{statistics.mean(hook_mlp) + 0.5:.2f} ± {statistics.stdev(hook_mlp):.2f}" in best_of
+
+
+def test_a_tie_is_called_a_tie(hand_built):
+    """SDE-LNN at lambda 0 ahead of the MLP by 0.05 dB, under 2 sigma (0.2 dB): a tie."""
+    for path in hand_built.rglob("results.json"):
+        raw = json.loads(path.read_text())
+        lam, seed = (float(v) for v in path.parent.name[1:].split("-s"))
+        if "/sde/" in path.as_posix():
+            mlp = fake_psnr(path.parts[-4], "mlp", 0.0, int(seed))
+            raw["final"]["psnr"] = mlp + 0.05 - 10 * lam
+        path.write_text(json.dumps(raw))
+    text = write_report(hand_built).read_text()
+    assert re.search(r"Dataset mean: SDE-LNN \(lambda 0\) leads with \S+ dB, 0\.05 dB ahead of D-3DGS \(MLP\)"
+                     r".* this is a tie\.", text)  # fmt: skip
+
+
+# ------------------------------------------------------------------ bad input
+def test_a_folder_without_a_manifest_is_one_line_error(tmp_path):
+    with pytest.raises(LiquidGSError, match="experiment.json") as err:
+        write_report(tmp_path)
+    assert "\n" not in str(err.value)
+
+
+def test_a_corrupt_results_file_is_one_line_error_naming_it(hand_built):
+    path = next(hand_built.rglob("results.json"))
+    path.write_text('{"final": {"psnr": 3')
+    with pytest.raises(LiquidGSError) as err:
+        write_report(hand_built)
+    assert str(path) in str(err.value) and "\n" not in str(err.value)
+    path.write_text(json.dumps({**fake_results(30, 0.9, 0.1), "final": {"psnr": "high", "ssim": 0.9}}))
+    with pytest.raises(LiquidGSError, match=r"field 'final.psnr'"):
+        write_report(hand_built)
+
+
+def test_unknown_evaluation_is_refused(hand_built):
+    with pytest.raises(LiquidGSError, match="--eval"):
+        write_report(hand_built, evaluation="median")
