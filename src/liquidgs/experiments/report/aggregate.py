@@ -110,7 +110,9 @@ def tie_sigma(spreads: list[Spread]) -> tuple[float, str]:
 def lead_sentence(subject: str, ranked: list[tuple[Method, float]], sigma: float) -> str:
     """Who leads on PSNR, by how much, and whether the lead is a tie under the 2-sigma rule."""
     if len(ranked) < 2:
-        return f"{subject}: only {ranked[0][0].label if ranked else 'no method'} has scores; no comparison."
+        if not ranked:
+            return f"{subject}: no method has scores yet; no comparison."
+        return f"{subject}: only {ranked[0][0].label} has scores; no comparison."
     (first, a), (second, b) = ranked[0], ranked[1]
     gap = a - b
     verdict = "a tie" if gap < TIE_SIGMAS * sigma else "a lead"
