@@ -36,7 +36,8 @@ def usage_error_line(text: str) -> str:
         if line.startswith(_STOP):
             break
         body.append(line)
-    return f"{title}: {' '.join(body)}" if body else title
+    message = " ".join(body)
+    return message if message.startswith(title) or not message else f"{title}: {message}"
 
 
 def one_line_usage_errors(parse: Callable[[], T]) -> T:

@@ -87,7 +87,7 @@ def main(argv: list[str]) -> int:
     args = parse_args(EvalArgs, argv, prog="liquidgs eval", description=__doc__)
     record = evaluate_run(args)
     lp = record.get("lpips")
-    unfinished = "" if record["finished"] else f" [unfinished run, {record['iterations']} planned]"
+    unfinished = "" if record["finished"] else f" (unfinished run, {record['iterations']} planned)"
     Console().print(
         f"{record['scene']} / {record['field']} @ {record['iteration']}{unfinished} ({record['split']}): "
         f"PSNR {record['psnr']:.2f}  SSIM {record['ssim']:.4f}  LPIPS {lp if lp is None else round(lp, 4)} "

@@ -125,6 +125,7 @@ class Trainer:
         """Iteration of the checkpoint on disk, once this trainer has written or read one."""
         self.lpips, self.lpips_error = make_lpips(cfg, self.device)
         self._writer = None
+        self._resumed_from: int | None = None
 
     # ----------------------------------------------------------------- set-up
     def _initial_gaussians(self) -> torch.nn.ParameterDict:
@@ -183,8 +184,8 @@ class Trainer:
 
             # A resumed run replays the steps after its checkpoint: purge_step hides the first
             # attempt's events from those steps, so TensorBoard shows each step once.
-            resumed_at = self.state.iteration + 1 if self.state.iteration else None
-            self._writer = SummaryWriter(str(self.run_dir / "tensorboard"), purge_step=resumed_at)
+            purge_step = self._resumed_from + 1 if self._resumed_from else None
+            self._writer = SummaryWriter(str(self.run_dir / "tensorboard"), purge_step=purge_step)
         return self._writer
 
     # ----------------------------------------------------------------- the loop
@@ -266,6 +267,13 @@ class Trainer:
 
     def run(self, progress=None) -> dict:
         """Train from self.state.iteration to cfg.iterations; returns results.json's content."""
+        try:
+            return self._run(progress)
+        finally:  # flush the TensorBoard events of a stopped run too
+            if self._writer is not None:
+                self._writer.close()
+
+    def _run(self, progress) -> dict:
         cfg = self.cfg
         save_yaml(cfg, self.run_dir / CONFIG)
         task = (
@@ -400,8 +408,6 @@ class Trainer:
         }
         write_json_atomic(self.run_dir / PER_VIEW, {"iteration": cfg.iterations, "views": per_view})
         write_json_atomic(self.run_dir / RESULTS, results)
-        if self._writer is not None:
-            self._writer.close()
         return results
 
     # ----------------------------------------------------------------- checkpoints
@@ -437,7 +443,7 @@ class Trainer:
             self._restore(payload)
         except (KeyError, TypeError, ValueError, RuntimeError) as err:  # weights of another config
             raise LiquidGSError(f"{path}: checkpoint does not fit {CONFIG} ({type(err).__name__})") from None
-        self.checkpoint_iteration = self.state.iteration
+        self.checkpoint_iteration = self._resumed_from = self.state.iteration
 
     def _restore(self, payload: dict) -> None:
         params = payload["params"]
