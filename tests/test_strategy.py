@@ -99,7 +99,7 @@ def test_opacity_reset_actually_fires():
     assert optimizers["opacities"].state[params["opacities"]]["exp_avg"].abs().sum() == 0
     # After the densification window nothing happens, not even a reset.
     late = strategy.step_post_backward(params, optimizers, state, 15_000, make_info(torch.zeros(6, 2), torch.ones(6)))
-    assert late == {"cloned": 0, "split": 0, "pruned": 0, "reset": 0}
+    assert late == {"cloned": 0, "split": 0, "pruned": 0, "reset": 0, "pruned_all": 0}
 
 
 def test_adam_steps_after_densification():

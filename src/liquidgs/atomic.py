@@ -1,16 +1,23 @@
 """Atomic file writes: a temporary file in the target's folder, then os.replace.
 
 A reader (or a crash) never sees a half-written file; results.json written this way is the
-only "done" marker of a run.
+only "done" marker of a run. A process killed mid-write leaves its temporary behind
+(`.<stem>.<random>.tmp<suffix>`); `temporaries_of` finds them so the folder's next writer
+can remove them.
 """
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
+
+from liquidgs.errors import LiquidGSError
+
+_DISK_FULL = (errno.ENOSPC, errno.EDQUOT)
 
 
 def _current_umask() -> int:
@@ -22,23 +29,41 @@ def _current_umask() -> int:
 _UMASK = _current_umask()
 
 
+def _temporary_name_parts(path: Path) -> tuple[str, str]:
+    return f".{path.stem}.", f".tmp{path.suffix}"
+
+
+def temporaries_of(path: str | Path) -> list[Path]:
+    """Temporaries that write_atomic(path) left behind (a process killed mid-write)."""
+    path = Path(path)
+    prefix, suffix = _temporary_name_parts(path)
+    return sorted(p for p in path.parent.glob(f"{prefix}*{suffix}") if p.is_file())
+
+
 def write_atomic(path: str | Path, writer: Callable[[Path], None]) -> Path:
     """Call writer(tmp_path), then move tmp_path over path. The tmp file is removed on failure.
 
     The temporary name keeps the target's extension, since some writers (ffmpeg) pick the
-    container from it.
+    container from it. A full disk is one clear error; the previous file at `path` is kept.
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=f".tmp{path.suffix}", dir=path.parent)
-    os.close(fd)
-    # mkstemp makes the file 0600; results are meant to be shared like any other file.
-    os.chmod(tmp, 0o666 & ~_UMASK)
+    prefix, suffix = _temporary_name_parts(path)
+    tmp: Path | None = None
     try:
-        writer(Path(tmp))
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, name = tempfile.mkstemp(prefix=prefix, suffix=suffix, dir=path.parent)
+        os.close(fd)
+        tmp = Path(name)
+        # mkstemp makes the file 0600; results are meant to be shared like any other file.
+        os.chmod(tmp, 0o666 & ~_UMASK)
+        writer(tmp)
         os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
+    except BaseException as err:
+        if tmp is not None:
+            tmp.unlink(missing_ok=True)
+        if isinstance(err, OSError) and err.errno in _DISK_FULL:
+            kept = "the previous file is kept" if path.exists() else "nothing was written"
+            raise LiquidGSError(f"no space left on {path.parent} while writing {path.name}; {kept}") from None
         raise
     return path
 

@@ -2,6 +2,10 @@
 
 Each command module exposes `main(argv: list[str]) -> int`. Modules are imported lazily so
 that `liquidgs data check` does not pay for importing the trainer.
+
+Every failure a user can cause ends in one line on stderr and exit 2 (130 for Ctrl-C):
+LiquidGSError carries its own message; an OSError (read-only file system, a file where a
+folder is expected, permissions) is reported with the path it names.
 """
 
 from __future__ import annotations
@@ -9,12 +13,12 @@ from __future__ import annotations
 import importlib
 import sys
 
-from liquidgs.errors import LiquidGSError
+from liquidgs.errors import LiquidGSError, one_line
 
 COMMANDS: dict[str, tuple[str, str]] = {
     "demo": ("liquidgs.commands.demo", "synthetic scene -> train MLP, CfC, SDE-LNN -> report"),
     "train": ("liquidgs.commands.train", "train a dynamic scene with a deformation field"),
-    "eval": ("liquidgs.commands.evaluate", "re-evaluate a finished run"),
+    "eval": ("liquidgs.commands.evaluate", "re-evaluate a run's checkpoint"),
     "render": ("liquidgs.commands.render", "test renders, depth, time sweep, orbit video"),
     "export": ("liquidgs.commands.export", "canonical PLY, PLY at a time, PLY sequence"),
     "data": ("liquidgs.commands.data", "generate synthetic scenes, validate dataset folders"),
@@ -31,6 +35,11 @@ def _usage() -> str:
     return "\n".join(lines)
 
 
+def _os_error_line(err: OSError) -> str:
+    where = err.filename if err.filename is not None else "a file"
+    return f"{where}: {err.strerror or err}"
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if not argv or argv[0] in ("-h", "--help"):
@@ -40,14 +49,18 @@ def main(argv: list[str] | None = None) -> int:
     if name not in COMMANDS:
         print(f"liquidgs: error: unknown command '{name}'\n\n{_usage()}", file=sys.stderr)
         return 2
-    module = importlib.import_module(COMMANDS[name][0])
     try:
+        module = importlib.import_module(COMMANDS[name][0])
         return int(module.main(rest) or 0)
     except LiquidGSError as err:
-        print(f"liquidgs {name}: error: {err}", file=sys.stderr)
+        print(f"liquidgs {name}: error: {one_line(str(err))}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print(f"liquidgs {name}: interrupted", file=sys.stderr)
+    except OSError as err:
+        print(f"liquidgs {name}: error: {one_line(_os_error_line(err))}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt as err:
+        detail = f": {one_line(str(err))}" if str(err) else ""
+        print(f"liquidgs {name}: interrupted{detail}", file=sys.stderr)
         return 130
 
 

@@ -21,3 +21,8 @@ class DataError(LiquidGSError):
         self.field = field
         where = f"{self.path}" + (f": field '{field}'" if field else "")
         super().__init__(f"{where}: {message}")
+
+
+def one_line(text: str) -> str:
+    """Messages from other libraries (torch, yaml) can span lines; the CLI prints one."""
+    return " ".join(text.split())

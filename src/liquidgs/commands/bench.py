@@ -5,6 +5,8 @@ from __future__ import annotations
 import importlib
 import sys
 
+from liquidgs.commands.args import one_line_usage_errors
+
 BENCHMARKS = {
     "raster": "liquidgs.render.benchmark",
     "fields": "liquidgs.fields.benchmark",
@@ -15,4 +17,6 @@ def main(argv: list[str]) -> int:
     if not argv or argv[0] not in BENCHMARKS:
         print(f"usage: liquidgs bench {{{','.join(BENCHMARKS)}}} [--json] [options]", file=sys.stderr)
         return 0 if argv and argv[0] in ("-h", "--help") else 2
-    return int(importlib.import_module(BENCHMARKS[argv[0]]).main(argv[1:]) or 0)
+    module = importlib.import_module(BENCHMARKS[argv[0]])
+    args = one_line_usage_errors(lambda: module.build_parser().parse_args(argv[1:]))
+    return int(module.run(args) or 0)

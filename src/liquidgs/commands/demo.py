@@ -16,15 +16,15 @@ from pathlib import Path
 
 import numpy as np
 import torch
-import tyro
 from rich.console import Console
 
 from liquidgs.atomic import write_text_atomic
+from liquidgs.commands.args import parse_args
 from liquidgs.data import DEFAULT_SYNTHETIC_SCENE, SYNTHETIC_SCENES, generate_synthetic, load_dataset
 from liquidgs.errors import ConfigError
 from liquidgs.eval.lpips import metric_name
 from liquidgs.media import labelled, to_uint8, write_png, write_video
-from liquidgs.train.config import preset_config
+from liquidgs.train.config import TrainConfig, preset_config, validate
 from liquidgs.train.run import TrainedRun, load_run
 from liquidgs.train.trainer import data_config
 
@@ -42,18 +42,24 @@ class DemoArgs:
     device: str = "auto"
 
 
+def field_run_config(args: DemoArgs, name: str, data_path: Path) -> TrainConfig:
+    cfg = preset_config("tiny", data_path)
+    cfg.field = name  # type: ignore[assignment]
+    cfg.seed = args.seed
+    cfg.device = args.device
+    if args.iterations is not None:
+        cfg.iterations = args.iterations
+    cfg.out = args.out / "runs" / name
+    validate(cfg)
+    return cfg
+
+
 def train_fields(args: DemoArgs, data_path: Path, console: Console) -> dict[str, Path]:
     from liquidgs.commands.train import train
 
     runs = {}
     for name in FIELDS:
-        cfg = preset_config("tiny", data_path)
-        cfg.field = name  # type: ignore[assignment]
-        cfg.seed = args.seed
-        cfg.device = args.device
-        if args.iterations:
-            cfg.iterations = args.iterations
-        cfg.out = args.out / "runs" / name
+        cfg = field_run_config(args, name, data_path)
         console.rule(f"{FIELDS[name]} ({name})")
         train(cfg, cfg.out, console)
         runs[name] = cfg.out
@@ -139,9 +145,13 @@ def write_report(args: DemoArgs, runs: dict[str, Path], data_path: Path) -> Path
 
 
 def main(argv: list[str]) -> int:
-    args = tyro.cli(DemoArgs, args=argv, prog="liquidgs demo", description=__doc__)
+    args = parse_args(DemoArgs, argv, prog="liquidgs demo", description=__doc__)
     if args.scene not in SYNTHETIC_SCENES:
         raise ConfigError(f"unknown synthetic scene '{args.scene}' (choose from {', '.join(SYNTHETIC_SCENES)})")
+    if not 8 <= args.size <= 4096:
+        raise ConfigError(f"--size must be between 8 and 4096, got {args.size}")
+    for name in FIELDS:  # every setting checked before the scene is generated
+        field_run_config(args, name, args.out)
     console = Console(stderr=True)
     started = time.perf_counter()
     data_root = generate_synthetic(args.scene, args.out / "data" / args.scene, size=args.size, seed=args.seed)

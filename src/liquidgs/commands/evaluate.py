@@ -1,7 +1,8 @@
-"""`liquidgs eval --run DIR`: re-evaluate a finished run's final checkpoint on its test split.
+"""`liquidgs eval --run DIR`: re-evaluate a run's checkpoint on its test split.
 
-Writes DIR/eval.json (summary, labelled as a re-evaluation of the final checkpoint) and
-DIR/eval_per_view.json; results.json, the training record, is left as it was.
+Writes DIR/eval.json (summary, labelled with the checkpoint's iteration and whether the run
+had finished) and DIR/eval_per_view.json; results.json, the training record, is left as it
+was. A run in progress may be evaluated: its record says "unfinished run".
 """
 
 from __future__ import annotations
@@ -11,11 +12,12 @@ from pathlib import Path
 from typing import Literal
 
 import torch
-import tyro
 from rich.console import Console
 
 from liquidgs.atomic import write_json_atomic
+from liquidgs.commands.args import parse_args
 from liquidgs.data import load_dataset
+from liquidgs.errors import ConfigError
 from liquidgs.eval import LPIPS, LPIPSUnavailable, evaluate_views
 from liquidgs.train.run import load_run
 from liquidgs.train.trainer import data_config
@@ -42,8 +44,6 @@ def evaluate_run(args: EvalArgs) -> dict:
     quantize = cfg.eval.quantize_8bit if args.quantize_8bit is None else args.quantize_8bit
     dataset = load_dataset(data_config(cfg))
     if args.split not in dataset.splits:
-        from liquidgs.errors import ConfigError
-
         raise ConfigError(f"{cfg.data}: the dataset has no '{args.split}' split")
     try:
         lpips, lpips_error = (
@@ -66,8 +66,13 @@ def evaluate_run(args: EvalArgs) -> dict:
         render, dataset.splits[args.split], lpips=lpips, lpips_error=lpips_error, quantize=quantize
     )
     record = {
-        "kind": "re-evaluation of the final checkpoint",
+        "kind": "re-evaluation of the final checkpoint"
+        if run.finished
+        else f"re-evaluation of an unfinished run (checkpoint at iteration {run.iteration} "
+        f"of {run.config.iterations})",
         "iteration": run.iteration,
+        "iterations": run.config.iterations,
+        "finished": run.finished,
         "split": args.split,
         "field": cfg.field,
         "scene": dataset.scene_name,
@@ -79,15 +84,16 @@ def evaluate_run(args: EvalArgs) -> dict:
 
 
 def main(argv: list[str]) -> int:
-    args = tyro.cli(EvalArgs, args=argv, prog="liquidgs eval", description=__doc__)
+    args = parse_args(EvalArgs, argv, prog="liquidgs eval", description=__doc__)
     record = evaluate_run(args)
     lpips_text = (
         f"{record['lpips_metric']} {record['lpips']:.4f}"
         if record["lpips"] is not None
         else f"({record['lpips_unavailable']})"
     )
+    unfinished = "" if record["finished"] else f" (unfinished run, {record['iterations']} planned)"
     Console().print(
-        f"{record['scene']} / {record['field']} @ {record['iteration']} ({record['split']}): "
+        f"{record['scene']} / {record['field']} @ {record['iteration']}{unfinished} ({record['split']}): "
         f"PSNR {record['psnr']:.2f}  SSIM {record['ssim']:.4f}  {lpips_text} -> {args.run / 'eval.json'}",
         highlight=False,
         soft_wrap=True,

@@ -8,15 +8,16 @@ sequence sequence/frame_0000.ply ... at N evenly spaced times (SuperSplat/brush 
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import torch
-import tyro
 from rich.console import Console
 from rich.progress import track
 
 from liquidgs.atomic import write_atomic
+from liquidgs.commands.args import parse_args
 from liquidgs.errors import ConfigError
 from liquidgs.gaussians import write_ply
 from liquidgs.train.run import TrainedRun, load_run
@@ -51,20 +52,34 @@ def baked_params(run: TrainedRun, time: float) -> dict[str, torch.Tensor]:
     }
 
 
+MAX_SEQUENCE = 100_000
+
+
+def time_file_name(time: float) -> str:
+    return f"time_{time + 0.0:.4f}.ply"  # + 0.0 turns -0.0 into 0.0
+
+
 def export_run(args: ExportArgs, console: Console | None = None) -> list[Path]:
+    names: dict[str, float] = {}
     for t in args.time:
-        if not 0.0 <= t <= 1.0:
+        if not (math.isfinite(t) and 0.0 <= t <= 1.0):
             raise ConfigError(f"--time {t} is outside [0, 1]")
-    if args.sequence < 0:
-        raise ConfigError(f"--sequence must be >= 0, got {args.sequence}")
+        name = time_file_name(t)
+        if name in names and names[name] != t:
+            raise ConfigError(f"--time {names[name]} and {t} would both be written to {name}")
+        names[name] = t
+    if not 0 <= args.sequence <= MAX_SEQUENCE:
+        raise ConfigError(f"--sequence must be between 0 and {MAX_SEQUENCE}, got {args.sequence}")
     run = load_run(args.run, args.device)
+    if console is not None and not run.finished:
+        console.print(f"[yellow]note:[/] {args.run}: {run.progress_label}")
     out = args.out or args.run / "export"
     written = [write_ply(out / "canonical.ply", run.params)]
     field_path = out / "field.pt"
     payload = {"config": dataclasses.asdict(run.config.field_config()), "state_dict": run.field.state_dict()}
     written.append(write_atomic(field_path, lambda tmp: torch.save(payload, tmp)))
     for t in args.time:
-        written.append(write_ply(out / f"time_{t:.4f}.ply", baked_params(run, t)))
+        written.append(write_ply(out / time_file_name(t), baked_params(run, t)))
     if args.sequence:
         times = [i / max(args.sequence - 1, 1) for i in range(args.sequence)]
         for i, t in enumerate(track(times, description="PLY sequence", console=console, disable=console is None)):
@@ -73,7 +88,7 @@ def export_run(args: ExportArgs, console: Console | None = None) -> list[Path]:
 
 
 def main(argv: list[str]) -> int:
-    args = tyro.cli(ExportArgs, args=argv, prog="liquidgs export", description=__doc__)
+    args = parse_args(ExportArgs, argv, prog="liquidgs export", description=__doc__)
     console = Console(stderr=True)
     written = export_run(args, console)
     console.print(f"wrote {len(written)} files under {written[0].parent}")

@@ -17,17 +17,19 @@ from pathlib import Path
 
 import numpy as np
 import torch
-import tyro
 from rich.console import Console
 from rich.progress import track
 
 from liquidgs.atomic import write_json_atomic
+from liquidgs.commands.args import parse_args
 from liquidgs.data import load_dataset
 from liquidgs.errors import ConfigError
 from liquidgs.media import depth_to_uint8, to_uint8, write_png, write_video
 from liquidgs.render.cameras import orbit
 from liquidgs.train.run import TrainedRun, load_run
 from liquidgs.train.trainer import data_config
+
+MAX_FRAMES = 100_000
 
 
 @dataclass
@@ -41,6 +43,7 @@ class RenderArgs:
     orbit_frames: int = 72
     orbit_time: float = 0.5
     fps: int = 24
+    """Frames per second of the videos (1 to 240)."""
     uncertainty_samples: int = 0
     """Monte-Carlo passes per test view for uncertainty maps (0: none; needs the 'sde' field)."""
     device: str = "auto"
@@ -75,9 +78,16 @@ def monte_carlo_views(run: TrainedRun, frames, samples: int, background, out: Pa
 def render_run(args: RenderArgs, console: Console | None = None) -> dict[str, Path]:
     if not 0.0 <= args.orbit_time <= 1.0:
         raise ConfigError(f"--orbit-time {args.orbit_time} is outside [0, 1]")
-    if args.uncertainty_samples == 1 or args.uncertainty_samples < 0:
-        raise ConfigError(f"--uncertainty-samples must be 0 or >= 2, got {args.uncertainty_samples}")
+    if not (args.uncertainty_samples == 0 or 2 <= args.uncertainty_samples <= MAX_FRAMES):
+        raise ConfigError(f"--uncertainty-samples must be 0 or 2 to {MAX_FRAMES}, got {args.uncertainty_samples}")
+    for flag, value in (("--sweep-frames", args.sweep_frames), ("--orbit-frames", args.orbit_frames)):
+        if not 1 <= value <= MAX_FRAMES:
+            raise ConfigError(f"{flag} must be between 1 and {MAX_FRAMES}, got {value}")
+    if not 1 <= args.fps <= 240:
+        raise ConfigError(f"--fps must be between 1 and 240, got {args.fps}")
     run = load_run(args.run, args.device)
+    if console is not None and not run.finished:
+        console.print(f"[yellow]note:[/] {args.run}: {run.progress_label}")
     if args.uncertainty_samples and run.config.field != "sde":
         raise ConfigError(f"--uncertainty-samples needs a run of the 'sde' field; {args.run} used '{run.config.field}'")
     dataset = load_dataset(data_config(run.config))
@@ -116,7 +126,7 @@ def render_run(args: RenderArgs, console: Console | None = None) -> dict[str, Pa
 
 
 def main(argv: list[str]) -> int:
-    args = tyro.cli(RenderArgs, args=argv, prog="liquidgs render", description=__doc__)
+    args = parse_args(RenderArgs, argv, prog="liquidgs render", description=__doc__)
     console = Console(stderr=True)
     written = render_run(args, console)
     for name, path in written.items():

@@ -10,16 +10,26 @@ preset's values as defaults. The resolved configuration is written to DIR/config
 from __future__ import annotations
 
 import argparse
-import json
+import shlex
 from pathlib import Path
 
-import tyro
 from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
+from liquidgs.commands.args import one_line_usage_errors, parse_args
 from liquidgs.errors import ConfigError
 from liquidgs.train.config import TrainConfig, config_hash, identity, load_yaml, preset_config, validate
-from liquidgs.train.trainer import CONFIG, Trainer, data_config, run_directory_state
+from liquidgs.train.runlock import run_folder_lock
+from liquidgs.train.trainer import (
+    CONFIG,
+    PER_VIEW,
+    RESULTS,
+    Trainer,
+    data_config,
+    read_results,
+    run_directory_state,
+    stale_temporaries,
+)
 
 
 def default_run_dir(cfg: TrainConfig) -> Path:
@@ -47,7 +57,7 @@ def resolve_config(argv: list[str]) -> tuple[TrainConfig, Path]:
     pre.add_argument("--preset", default=None)
     pre.add_argument("--out", type=Path)
     pre.add_argument("--resume", action="store_true")
-    known, _ = pre.parse_known_args(argv)
+    known, _ = one_line_usage_errors(lambda: pre.parse_known_args(argv))
     help_asked = any(a in ("-h", "--help") for a in argv)
 
     stored = None
@@ -62,7 +72,7 @@ def resolve_config(argv: list[str]) -> tuple[TrainConfig, Path]:
         if known.data is None and not help_asked:
             raise ConfigError("--data PATH is required")
         default = preset_config(known.preset or "dnerf", known.data or Path("."))
-    cfg = tyro.cli(TrainConfig, default=default, args=argv, prog="liquidgs train", description=__doc__)
+    cfg = parse_args(TrainConfig, argv, prog="liquidgs train", description=__doc__, default=default)
     validate(cfg)
     if stored is not None:
         changed = [k for k in differing_settings(cfg, stored) if k != "iterations"]
@@ -80,7 +90,8 @@ def check_run_dir(cfg: TrainConfig, run_dir: Path) -> str:
     """Refuse to touch a folder holding anything but this same run. Returns its state."""
     state = run_directory_state(run_dir)
     if state == "foreign":
-        raise ConfigError(f"{run_dir}: output folder is not empty and holds no liquidgs run; nothing was written")
+        what = "is not empty and holds no liquidgs run" if run_dir.is_dir() else "is a file, not a folder"
+        raise ConfigError(f"{run_dir}: output folder {what}; nothing was written")
     if state in ("finished", "unfinished", "configured") and not cfg.resume:
         changed = differing_settings(cfg, load_yaml(run_dir / CONFIG))
         if changed:
@@ -109,23 +120,65 @@ def make_progress(console: Console) -> Progress:
     )
 
 
+def check_resume_progress(cfg: TrainConfig, run_dir: Path, checkpoint_iteration: int) -> None:
+    """A resume may end a run where it is or extend it, never take it back."""
+    if cfg.iterations < checkpoint_iteration:
+        raise ConfigError(
+            f"{run_dir}: --iterations {cfg.iterations} would go back: the checkpoint is at iteration "
+            f"{checkpoint_iteration}; nothing was changed"
+        )
+
+
+def interrupted_message(trainer: Trainer, run_dir: Path) -> str:
+    resume = f"liquidgs train --out {shlex.quote(str(run_dir))} --resume"
+    if trainer.checkpoint_iteration is None:
+        return f"no checkpoint was written yet in {run_dir}; start it again with the same command"
+    return f"the checkpoint at iteration {trainer.checkpoint_iteration} is kept in {run_dir}; continue with: {resume}"
+
+
 def train(cfg: TrainConfig, run_dir: Path, console: Console | None = None, dataset=None) -> dict:
-    """Validate the data, then train (or resume, or report a finished run)."""
+    """Validate the data, then train (or resume, or report a finished run).
+
+    The run folder is written by one process at a time (run_folder_lock); nothing is written
+    before the data, the settings and, on --resume, the checkpoint have been checked.
+    """
     from liquidgs.data import load_dataset
 
     console = console or Console(stderr=True)
     state = check_run_dir(cfg, run_dir)
     if state == "finished" and not cfg.resume:
-        console.print(f"{run_dir}: already finished; results in {run_dir / 'results.json'}")
-        return json.loads((run_dir / "results.json").read_text())
+        console.print(f"{run_dir}: already finished; results in {run_dir / RESULTS}")
+        return read_results(run_dir)
     # Load (and so validate) the data before anything is written.
     dataset = dataset if dataset is not None else load_dataset(data_config(cfg))
     trainer = Trainer(cfg, run_dir, dataset)
-    if cfg.resume and state != "empty":
-        trainer.load_checkpoint()
-        console.print(f"resuming {run_dir} at iteration {trainer.state.iteration}")
-    with make_progress(console) as progress:
-        results = trainer.run(progress)
+    for note in trainer.notes:
+        console.print(f"[yellow]note:[/] {note}")
+    with run_folder_lock(run_dir):
+        state = check_run_dir(cfg, run_dir)  # again, now that no other writer can change it
+        for tmp in stale_temporaries(run_dir):
+            tmp.unlink(missing_ok=True)
+            console.print(f"removed {tmp.name}, left by a write that was interrupted")
+        if state == "finished" and not cfg.resume:
+            console.print(f"{run_dir}: already finished; results in {run_dir / RESULTS}")
+            return read_results(run_dir)
+        if cfg.resume and state != "empty":
+            trainer.load_checkpoint()
+            check_resume_progress(cfg, run_dir, trainer.state.iteration)
+            if state == "finished":
+                if cfg.iterations == trainer.state.iteration:
+                    console.print(f"{run_dir}: already finished at iteration {cfg.iterations}")
+                    return read_results(run_dir)
+                # Extending a finished run: its results no longer describe the checkpoint.
+                (run_dir / RESULTS).unlink()
+                (run_dir / PER_VIEW).unlink(missing_ok=True)
+                console.print(f"extending the finished run to {cfg.iterations} iterations; removed its {RESULTS}")
+            console.print(f"resuming {run_dir} at iteration {trainer.state.iteration}")
+        try:
+            with make_progress(console) as progress:
+                results = trainer.run(progress)
+        except KeyboardInterrupt:
+            raise KeyboardInterrupt(interrupted_message(trainer, run_dir)) from None
     final = results["final"]
     lpips = final.get("lpips")
     console.print(

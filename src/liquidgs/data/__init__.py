@@ -1,7 +1,7 @@
 """Dynamic-scene datasets: D-NeRF and Nerfies-family readers, validation, synthetic scenes."""
 
 from liquidgs.data.loading import CheckReport, check_dataset, detect_format, load_dataset
-from liquidgs.data.scene import DataConfig, Frame, SceneDataset
+from liquidgs.data.scene import DataConfig, Frame, SceneDataset, spread_extent
 from liquidgs.data.synthetic import DEFAULT_SYNTHETIC_SCENE, SYNTHETIC_SCENES, generate_synthetic
 
 __all__ = [
@@ -15,4 +15,5 @@ __all__ = [
     "detect_format",
     "generate_synthetic",
     "load_dataset",
+    "spread_extent",
 ]

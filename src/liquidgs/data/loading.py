@@ -43,8 +43,10 @@ def detect_format(path: Path) -> str:
 
 def load_dataset(cfg: DataConfig) -> SceneDataset:
     """Validate the scene strictly and return it with lazily decoded images."""
-    if not cfg.path.is_dir():
+    if not cfg.path.exists():
         raise DataError(cfg.path, "dataset folder not found")
+    if not cfg.path.is_dir():
+        raise DataError(cfg.path, "is a file, not a dataset folder")
     fmt = detect_format(cfg.path) if cfg.format == "auto" else cfg.format
     dataset = READERS[fmt](cfg)
     for message in dataset.warnings:
@@ -80,9 +82,11 @@ class CheckReport:
                 f"{name} [{min(f.time for f in frames):.4f}, {max(f.time for f in frames):.4f}]"
                 for name, frames in ds.splits.items()
             ),
-            f"extent:     {ds.camera_extent:.4f} (1.1 x largest train camera distance from their mean)",
+            f"extent:     {ds.camera_extent:.4f} (1.1 x largest train camera distance from their mean)"
+            + ("  DEGENERATE: see the warning below" if ds.camera_extent_degenerate else ""),
             f"points:     {len(ds.points) if ds.points is not None else 'none'}",
-            f"images:     {self.images_decoded} decoded in full, all OK",
+            f"images:     {self.images_decoded} decoded in full, "
+            + (f"{len(ds.warnings)} warning(s) below" if ds.warnings else "all OK"),
         ]
         lines += [f"warning:    {message}" for message in ds.warnings]
         return lines

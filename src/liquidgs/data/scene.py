@@ -83,10 +83,19 @@ class Frame:
         return torch.from_numpy(self.image_uint8().astype(np.float32)).div_(255.0)
 
 
+def spread_extent(points: torch.Tensor) -> float:
+    """1.1 x the largest distance of a point from their mean (D-3DGS's extent of the cameras)."""
+    points = points.double()
+    return 1.1 * float((points - points.mean(dim=0)).norm(dim=1).max())
+
+
 def camera_extent(frames: list[Frame]) -> float:
-    """1.1 x the largest distance of a camera centre from their mean (D-3DGS's extent)."""
-    centers = torch.stack([frame.camera_center for frame in frames]).double()
-    return 1.1 * float((centers - centers.mean(dim=0)).norm(dim=1).max())
+    return spread_extent(torch.stack([frame.camera_center for frame in frames]))
+
+
+MIN_CAMERA_EXTENT = 1e-6
+"""Below this the train cameras sit at one position (a fixed camera, a single frame): the
+extent densification scales its size tests by is meaningless and must come from elsewhere."""
 
 
 @dataclass(eq=False)
@@ -106,6 +115,15 @@ class SceneDataset:
 
     def __post_init__(self) -> None:
         self.camera_extent = camera_extent(self.train)
+        if self.camera_extent_degenerate:
+            self.warnings.append(
+                f"the {len(self.train)} train camera(s) all sit at one position (camera extent "
+                f"{self.camera_extent:.4f}); training takes the scene extent from the initial points instead"
+            )
+
+    @property
+    def camera_extent_degenerate(self) -> bool:
+        return self.camera_extent < MIN_CAMERA_EXTENT
 
     @property
     def kind(self) -> Literal["synthetic", "real"]:

@@ -36,7 +36,7 @@ def _csv(kind: Callable[[str], object]) -> Callable[[str], list]:
     return lambda text: [kind(item) for item in text.split(",") if item]
 
 
-def _parser() -> argparse.ArgumentParser:
+def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="liquidgs bench fields", description=__doc__.splitlines()[0])
     parser.add_argument("--json", action="store_true", help="one JSON object per line (default: a table)")
     parser.add_argument("--device", default="auto", help="cpu, cuda, cuda:N or auto (cuda when available)")
@@ -119,7 +119,10 @@ def benchmark(args) -> Iterator[dict]:
     if args.device == "auto":
         device = torch.device("cuda" if torch.cuda.is_available() else "cpu")
     else:
-        device = torch.device(args.device)
+        try:
+            device = torch.device(args.device)
+        except RuntimeError:
+            raise ConfigError(f"--device: unknown device {args.device!r}") from None
     if args.threads > 0:
         torch.set_num_threads(args.threads)
     device_name = torch.cuda.get_device_name(device) if device.type == "cuda" else "cpu"
@@ -171,12 +174,20 @@ def _table(rows: list[dict]) -> str:
 
 
 def main(argv: list[str]) -> int:
-    args = _parser().parse_args(argv)
+    return run(build_parser().parse_args(argv))
+
+
+def run(args: argparse.Namespace) -> int:
     for name in args.fields:
         if name not in FIELD_NAMES:
             raise ConfigError(f"unknown field '{name}' (choose from {', '.join(FIELD_NAMES)})")
-    if not args.sizes or min(args.sizes) < 1 or args.repeats < 1 or args.warmup < 0:
-        raise ConfigError("bench fields: sizes and repeats must be >= 1, warmup >= 0")
+    if not args.sizes or min(args.sizes) < 1 or args.repeats < 1 or args.warmup < 0 or args.threads < 0:
+        raise ConfigError("bench fields: sizes and repeats must be >= 1, warmup and threads >= 0")
+    if not (args.max_seconds > 0 and args.lambda_ >= 0) or max(args.sizes) > 100_000_000:
+        raise ConfigError("bench fields: need --max-seconds > 0, --lambda >= 0 and sizes up to 100000000")
+    for name in args.presets:
+        if name not in PRESET_NAMES:
+            raise ConfigError(f"unknown preset '{name}' (choose from {', '.join(PRESET_NAMES)})")
     if args.json:
         for row in benchmark(args):
             print(json.dumps(row), flush=True)

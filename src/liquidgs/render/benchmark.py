@@ -22,6 +22,7 @@ from pathlib import Path
 
 import torch
 
+from liquidgs.errors import ConfigError
 from liquidgs.render.projection import project_gaussians
 from liquidgs.render.rasterize import (
     DEFAULT_TILE_SIZE,
@@ -41,9 +42,12 @@ def parse_case(text: str) -> tuple[int, int, int]:
     size, _, count = text.partition("/")
     width, _, height = size.partition("x")
     try:
-        return int(width), int(height), int(count)
+        case = int(width), int(height), int(count)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"a case looks like WIDTHxHEIGHT/N, got {text!r}") from None
+        raise ConfigError(f"--cases: a case looks like WIDTHxHEIGHT/N, got {text!r}") from None
+    if not all(1 <= value <= 100_000_000 for value in case):
+        raise ConfigError(f"--cases: width, height and N must be between 1 and 100000000, got {text!r}")
+    return case
 
 
 def dnerf_like_scene(n: int, width: int, height: int, device: torch.device, seed: int = 0) -> dict:
@@ -178,10 +182,21 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str]) -> int:
-    args = build_parser().parse_args(argv)
-    device = torch.device(args.device)
+    return run(build_parser().parse_args(argv))
+
+
+def run(args: argparse.Namespace) -> int:
+    try:
+        device = torch.device(args.device)
+    except RuntimeError:
+        raise ConfigError(f"--device: unknown device {args.device!r}") from None
     cases = [parse_case(text) for text in args.cases.split(",") if text]
-    tile_sizes = [int(text) for text in args.tile_sizes.split(",")]
+    try:
+        tile_sizes = [int(text) for text in args.tile_sizes.split(",")]
+    except ValueError:
+        raise ConfigError(f"--tile-sizes: comma-separated integers expected, got {args.tile_sizes!r}") from None
+    if not cases or not all(1 <= size <= 256 for size in tile_sizes) or args.repeats < 1 or args.warmup < 0:
+        raise ConfigError("bench raster: need at least one case, tile sizes in 1..256, repeats >= 1 and warmup >= 0")
     machine = {"machine": machine_description(device), "torch_version": torch.__version__,
                "torch_threads": torch.get_num_threads()}  # fmt: skip
     results = []

@@ -5,6 +5,9 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import math
+import types
+import typing
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Literal
@@ -136,13 +139,95 @@ def preset_config(name: str, data: Path) -> TrainConfig:
     return cfg
 
 
+MAX_ITERATIONS = 10_000_000
+MAX_INIT_POINTS = 10_000_000
+_INT64_MAX = 2**63 - 1
+
+# Range of every integer setting: (lowest, highest). Zero intervals would divide by zero mid-run.
+_INT_RANGES: dict[str, tuple[int, int]] = {
+    "iterations": (1, MAX_ITERATIONS),
+    "seed": (0, _INT64_MAX),
+    "warmup": (0, _INT64_MAX),
+    "sh_degree": (0, 3),
+    "sh_interval": (1, _INT64_MAX),
+    "init_points": (1, MAX_INIT_POINTS),
+    "smooth_time_steps": (1, _INT64_MAX),
+    "checkpoint_every": (1, _INT64_MAX),
+    "optim.means_lr_steps": (1, _INT64_MAX),
+    "optim.field_lr_steps": (1, _INT64_MAX),
+    "densify.start": (0, _INT64_MAX),
+    "densify.stop": (0, _INT64_MAX),
+    "densify.interval": (1, _INT64_MAX),
+    "densify.opacity_reset_interval": (1, _INT64_MAX),
+    "densify.split_count": (1, 64),
+    "eval.start": (0, _INT64_MAX),
+    "eval.every": (1, _INT64_MAX),
+    "eval.fps_frames": (1, 100_000),
+}
+
+
+def _positive(v: float) -> bool:
+    return v > 0
+
+
+def _non_negative(v: float) -> bool:
+    return v >= 0
+
+
+def _unit(v: float) -> bool:
+    return 0 <= v <= 1
+
+
+def _open_unit(v: float) -> bool:
+    return 0 < v < 1
+
+
+_RULE_TEXT = {_positive: "> 0", _non_negative: ">= 0", _unit: "in [0, 1]", _open_unit: "in (0, 1)"}
+
+# Every float setting must be finite and pass its rule.
+_FLOAT_RULES = {
+    "init_extent": _positive,
+    "ssim_weight": _unit,
+    "divergence_drop_db": _positive,
+    **{f"optim.{name}": _non_negative for name in (
+        "means_lr_init", "means_lr_final", "sh0_lr", "shN_lr", "opacities_lr", "scales_lr", "quats_lr",
+        "field_lr_init", "field_lr_final",
+    )},  # fmt: skip
+    "optim.spatial_lr_scale": _positive,
+    "optim.adam_eps": _positive,
+    "densify.grad_threshold": _non_negative,
+    "densify.prune_opacity": _unit,
+    "densify.percent_dense": _non_negative,
+    "densify.max_screen_radius": _positive,
+    "densify.max_world_size": _positive,
+    "densify.split_scale_divisor": _positive,
+    "densify.reset_opacity_to": _open_unit,
+}
+
+
+def _setting(cfg: TrainConfig, dotted: str):
+    value = cfg
+    for part in dotted.split("."):
+        value = getattr(value, part)
+    return value
+
+
 def validate(cfg: TrainConfig) -> None:
+    """Every setting in range, so a run never fails mid-way on a value it could have refused."""
     if cfg.field not in FIELDS:
         raise ConfigError(f"unknown field '{cfg.field}' (choose from {', '.join(FIELDS)})")
-    if cfg.iterations < 1:
-        raise ConfigError(f"iterations must be >= 1, got {cfg.iterations}")
-    if cfg.lambda_ is not None and cfg.lambda_ < 0:
-        raise ConfigError(f"lambda must be >= 0, got {cfg.lambda_}")
+    for name, (lo, hi) in _INT_RANGES.items():
+        value = _setting(cfg, name)
+        if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
+            bound = f"between {lo} and {hi}" if hi < _INT64_MAX else f">= {lo}"
+            raise ConfigError(f"{name.replace('_', '-')} must be an integer {bound}, got {value!r}")
+    for name, rule in _FLOAT_RULES.items():
+        value = _setting(cfg, name)
+        is_number = isinstance(value, (int, float)) and not isinstance(value, bool)
+        if not (is_number and math.isfinite(value) and rule(value)):
+            raise ConfigError(f"{name.replace('_', '-')} must be a finite number {_RULE_TEXT[rule]}, got {value!r}")
+    if cfg.lambda_ is not None and not (math.isfinite(cfg.lambda_) and cfg.lambda_ >= 0):
+        raise ConfigError(f"lambda must be a finite number >= 0, got {cfg.lambda_}")
     if cfg.field == "cfc" and cfg.resolved_lambda() != 0.0:
         raise ConfigError("the 'cfc' field is the deterministic cell (lambda = 0); use --field sde for noise")
     if cfg.downscale is not None and cfg.downscale < 1:
@@ -185,28 +270,62 @@ def save_yaml(cfg: TrainConfig, path: Path) -> None:
 def load_yaml(path: Path) -> TrainConfig:
     try:
         raw = yaml.safe_load(path.read_text())
-    except (OSError, yaml.YAMLError) as err:
-        raise ConfigError(f"{path}: unreadable run config ({err})") from None
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as err:
+        raise ConfigError(f"{path}: unreadable run config ({type(err).__name__})") from None
     if not isinstance(raw, dict) or "data" not in raw:
         raise ConfigError(f"{path}: not a liquidgs run config (no 'data')")
     return from_dict(raw, path)
 
 
+def _describe(hint) -> str:
+    if typing.get_origin(hint) is Literal:
+        return "one of " + ", ".join(map(str, typing.get_args(hint)))
+    if typing.get_origin(hint) in (typing.Union, types.UnionType):
+        return " or ".join(_describe(arg) for arg in typing.get_args(hint))
+    return {int: "an integer", float: "a number", bool: "true or false", str: "a string", Path: "a path",
+            type(None): "null"}.get(hint, str(hint))  # fmt: skip
+
+
+def _matches(value, hint) -> bool:
+    """Whether a YAML value fits a setting's type (the types TrainConfig and its parts use)."""
+    origin = typing.get_origin(hint)
+    if origin is Literal:
+        return any(value == choice and type(value) is type(choice) for choice in typing.get_args(hint))
+    if origin in (typing.Union, types.UnionType):
+        return any(_matches(value, arg) for arg in typing.get_args(hint))
+    if hint is type(None):
+        return value is None
+    if hint is float:
+        return isinstance(value, (int, float)) and not isinstance(value, bool)
+    if hint in (int, bool, str):
+        return type(value) is hint
+    if hint is Path:
+        return isinstance(value, str)
+    return True
+
+
 def from_dict(raw: dict, source: Path | str = "config") -> TrainConfig:
-    def build(cls, values: dict):
+    """A TrainConfig from YAML; a setting of the wrong type is one error naming it."""
+
+    def build(cls, values: dict, prefix: str):
+        if not isinstance(values, dict):
+            raise ConfigError(f"{source}: setting '{prefix.rstrip('.')}' must be a mapping, got {values!r}")
         kwargs = {}
-        hints = {f.name: f for f in dataclasses.fields(cls)}
+        fields = {f.name: f for f in dataclasses.fields(cls)}
+        hints = typing.get_type_hints(cls)
         for key, value in values.items():
-            if key not in hints:
-                raise ConfigError(f"{source}: unknown setting '{key}' for {cls.__name__}")
-            default = getattr(cls, key, None) if not callable(hints[key].default_factory) else None
-            nested = hints[key].default_factory() if callable(hints[key].default_factory) else default
-            if dataclasses.is_dataclass(nested) and isinstance(value, dict):
-                kwargs[key] = build(type(nested), value)
-            elif key in ("data", "out", "lpips_weights") and value is not None:
-                kwargs[key] = Path(value)
-            else:
-                kwargs[key] = value
+            if key not in fields:
+                raise ConfigError(f"{source}: unknown setting '{prefix}{key}' for {cls.__name__}")
+            factory = fields[key].default_factory
+            if callable(factory) and dataclasses.is_dataclass(factory()):
+                kwargs[key] = build(type(factory()), value, f"{prefix}{key}.")
+                continue
+            if not _matches(value, hints[key]):
+                raise ConfigError(
+                    f"{source}: setting '{prefix}{key}' must be {_describe(hints[key])}, got {value!r}"[:300]
+                )
+            is_path = Path in (hints[key], *typing.get_args(hints[key]))
+            kwargs[key] = Path(value) if is_path and value is not None else value
         return cls(**kwargs)
 
-    return build(TrainConfig, raw)
+    return build(TrainConfig, raw, "")

@@ -12,7 +12,7 @@ from liquidgs.fields import build_field
 from liquidgs.gaussians import PARAM_KEYS
 from liquidgs.train.config import TrainConfig, load_yaml
 from liquidgs.train.model import Deformed, deform, render_frame
-from liquidgs.train.trainer import CHECKPOINT, CONFIG, read_checkpoint, resolve_device
+from liquidgs.train.trainer import CHECKPOINT, CONFIG, RESULTS, read_checkpoint, resolve_device
 
 
 @dataclass
@@ -23,6 +23,15 @@ class TrainedRun:
     field: torch.nn.Module
     sh_degree: int
     iteration: int
+    finished: bool
+    """results.json, the run's only done marker, exists and the checkpoint is at the last iteration."""
+
+    @property
+    def progress_label(self) -> str:
+        """Where the checkpoint stands: readers accept runs in progress but say so."""
+        if self.finished:
+            return f"finished run, iteration {self.iteration}"
+        return f"unfinished run: checkpoint at iteration {self.iteration} of {self.config.iterations}"
 
     @property
     def device(self) -> torch.device:
@@ -49,6 +58,10 @@ class TrainedRun:
 
 def load_run(run_dir: str | Path, device: str = "auto") -> TrainedRun:
     run_dir = Path(run_dir)
+    if not run_dir.exists():
+        raise LiquidGSError(f"{run_dir}: does not exist")
+    if not run_dir.is_dir():
+        raise LiquidGSError(f"{run_dir}: is a file, not a run folder")
     if not (run_dir / CONFIG).is_file():
         raise LiquidGSError(f"{run_dir}: not a liquidgs run folder (no {CONFIG})")
     if not (run_dir / CHECKPOINT).is_file():
@@ -67,4 +80,6 @@ def load_run(run_dir: str | Path, device: str = "auto") -> TrainedRun:
     state = payload["state"]
     field = field.to(dev).eval()
     field.set_progress(int(state["iteration"]))  # annealed noise schedules resume where training ended
-    return TrainedRun(run_dir, cfg, params, field, int(state["sh_degree"]), int(state["iteration"]))
+    iteration = int(state["iteration"])
+    finished = (run_dir / RESULTS).is_file() and iteration == cfg.iterations
+    return TrainedRun(run_dir, cfg, params, field, int(state["sh_degree"]), iteration, finished)

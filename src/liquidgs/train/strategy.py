@@ -66,7 +66,7 @@ class D3DGSStrategy:
     ) -> dict[str, int]:
         """Call after loss.backward() and before the optimizers step. Returns what changed."""
         cfg = self.config
-        report = {"cloned": 0, "split": 0, "pruned": 0, "reset": 0}
+        report = {"cloned": 0, "split": 0, "pruned": 0, "reset": 0, "pruned_all": 0}
         if step >= cfg.stop:
             return report
         self._accumulate(state, info)
@@ -136,8 +136,9 @@ class D3DGSStrategy:
             too_wide_on_screen = state["max_radii"] > cfg.max_screen_radius
             too_big_in_world = torch.exp(params["scales"]).max(dim=-1).values > cfg.max_world_size * self.scene_extent
             prune |= too_wide_on_screen | too_big_in_world
-        # Never prune to nothing: an empty scene cannot recover.
-        if bool(prune.all()):
+        # Never prune to nothing: an empty scene cannot recover. The report says it happened.
+        pruned_all = bool(prune.all())
+        if pruned_all:
             prune[torch.argmax(params["opacities"])] = False
         n_pruned = int(prune.sum())
         if n_pruned:
@@ -145,7 +146,7 @@ class D3DGSStrategy:
 
         for key in ("grad_accum", "count", "max_radii"):
             state[key].zero_()
-        return {"cloned": n_clone, "split": n_split, "pruned": n_pruned}
+        return {"cloned": n_clone, "split": n_split, "pruned": n_pruned, "pruned_all": int(pruned_all)}
 
     @torch.no_grad()
     def _reset_opacity(self, params, optimizers) -> None:

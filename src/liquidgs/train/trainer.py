@@ -7,6 +7,8 @@ backward, densification statistics / densify / prune / opacity reset, Adam steps
 
 from __future__ import annotations
 
+import dataclasses
+import json
 import math
 import resource
 import time
@@ -16,14 +18,16 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from liquidgs.atomic import write_atomic, write_json_atomic
-from liquidgs.data import DataConfig, SceneDataset, load_dataset
+from liquidgs.atomic import temporaries_of, write_atomic, write_json_atomic
+from liquidgs.data import DataConfig, SceneDataset, load_dataset, spread_extent
+from liquidgs.data.scene import MIN_CAMERA_EXTENT
 from liquidgs.errors import ConfigError, LiquidGSError
 from liquidgs.eval import LPIPS, LPIPSUnavailable, evaluate_views, ssim
 from liquidgs.fields import build_field
 from liquidgs.gaussians import PARAM_KEYS, init_from_points, init_random_box
 from liquidgs.train.config import TrainConfig, save_yaml
 from liquidgs.train.model import deform, render_frame
+from liquidgs.train.runlock import LOCK_NAME
 from liquidgs.train.schedules import log_linear_lr, smooth_time_noise_scale
 from liquidgs.train.strategy import D3DGSStrategy
 
@@ -31,6 +35,8 @@ CHECKPOINT = "checkpoint.pt"
 RESULTS = "results.json"
 PER_VIEW = "per_view.json"
 CONFIG = "config.yml"
+RUN_FILES = (CONFIG, CHECKPOINT, PER_VIEW, RESULTS)
+"""What the trainer writes into a run folder (besides tensorboard/), each atomically."""
 CHECKPOINT_FORMAT = "liquidgs-checkpoint-1"
 
 
@@ -110,11 +116,16 @@ class Trainer:
         self.field_optimizer = (
             torch.optim.Adam(field_params, lr=cfg.optim.field_lr_init, eps=cfg.optim.adam_eps) if field_params else None
         )
-        self.strategy = D3DGSStrategy(cfg.densify, self.dataset.camera_extent)
+        self.notes: list[str] = []
+        """Things the user should know about this run (printed by the train command)."""
+        self.strategy = D3DGSStrategy(cfg.densify, self._scene_extent())
         self.strategy_state = self.strategy.initial_state(self.params["means"].shape[0], self.device)
         self.state = TrainState()
+        self.checkpoint_iteration: int | None = None
+        """Iteration of the checkpoint on disk, once this trainer has written or read one."""
         self.lpips, self.lpips_error = make_lpips(cfg, self.device)
         self._writer = None
+        self._resumed_from: int | None = None
 
     # ----------------------------------------------------------------- set-up
     def _initial_gaussians(self) -> torch.nn.ParameterDict:
@@ -122,6 +133,23 @@ class Trainer:
         if ds.points is not None:
             return init_from_points(ds.points, ds.point_colors, sh_degree=cfg.sh_degree)
         return init_random_box(cfg.init_points, cfg.init_extent, sh_degree=cfg.sh_degree, seed=cfg.seed)
+
+    def _scene_extent(self) -> float:
+        """The camera extent, or, when the cameras sit at one position, the initial points' extent."""
+        extent = self.dataset.camera_extent
+        if not self.dataset.camera_extent_degenerate:
+            return extent
+        fallback = spread_extent(self.params["means"].detach())
+        if fallback < MIN_CAMERA_EXTENT:
+            raise LiquidGSError(
+                f"{self.cfg.data}: the train cameras and the initial points each sit at one position; "
+                "there is no scene extent to densify by"
+            )
+        self.notes.append(
+            f"camera extent is {extent:.4f} (the {len(self.dataset.train)} train camera(s) sit at one position); "
+            f"densification uses {fallback:.4f}, 1.1 x the largest distance of an initial point from their mean"
+        )
+        return fallback
 
     def _static_lr(self, key: str) -> float:
         o = self.cfg.optim
@@ -154,7 +182,10 @@ class Trainer:
         if self._writer is None:
             from torch.utils.tensorboard import SummaryWriter
 
-            self._writer = SummaryWriter(str(self.run_dir / "tensorboard"))
+            # A resumed run replays the steps after its checkpoint: purge_step hides the first
+            # attempt's events from those steps, so TensorBoard shows each step once.
+            purge_step = self._resumed_from + 1 if self._resumed_from else None
+            self._writer = SummaryWriter(str(self.run_dir / "tensorboard"), purge_step=purge_step)
         return self._writer
 
     # ----------------------------------------------------------------- the loop
@@ -194,6 +225,11 @@ class Trainer:
             raise self._diverged(f"non-finite loss at iteration {step}")
         loss.backward()
         report = self.strategy.step_post_backward(self.params, self.optimizers, self.strategy_state, step, out.info)
+        if report["pruned_all"]:
+            raise self._diverged(
+                f"densification would have pruned every Gaussian at iteration {step} (opacity below "
+                f"{cfg.densify.prune_opacity}, or too large for the scene extent {self.strategy.scene_extent:.4g})"
+            )
         for optimizer in self.optimizers.values():
             optimizer.step()
             optimizer.zero_grad(set_to_none=True)
@@ -231,6 +267,13 @@ class Trainer:
 
     def run(self, progress=None) -> dict:
         """Train from self.state.iteration to cfg.iterations; returns results.json's content."""
+        try:
+            return self._run(progress)
+        finally:  # flush the TensorBoard events of a stopped run too
+            if self._writer is not None:
+                self._writer.close()
+
+    def _run(self, progress) -> dict:
         cfg = self.cfg
         save_yaml(cfg, self.run_dir / CONFIG)
         task = (
@@ -322,6 +365,9 @@ class Trainer:
     def finish(self) -> dict:
         cfg = self.cfg
         evaluations = self.state.evaluations
+        if not any(e["iteration"] == cfg.iterations for e in evaluations):
+            # A resume that ends the run at its checkpoint's iteration, which was no evaluation step.
+            self.evaluate_and_record(cfg.iterations)
         final = next(e for e in reversed(evaluations) if e["iteration"] == cfg.iterations)
         best = max(evaluations, key=lambda e: e["psnr"])
         per_view = getattr(self, "_final_per_view", None)
@@ -362,8 +408,6 @@ class Trainer:
         }
         write_json_atomic(self.run_dir / PER_VIEW, {"iteration": cfg.iterations, "views": per_view})
         write_json_atomic(self.run_dir / RESULTS, results)
-        if self._writer is not None:
-            self._writer.close()
         return results
 
     # ----------------------------------------------------------------- checkpoints
@@ -377,15 +421,31 @@ class Trainer:
             "field": self.field.state_dict(),
             "field_optimizer": self.field_optimizer.state_dict() if self.field_optimizer else None,
             "strategy": {k: v.cpu() for k, v in self.strategy_state.items()},
-            "state": self.state.__dict__,
+            "state": dataclasses.asdict(self.state),
             "torch_rng": torch.get_rng_state(),
             "camera_rng": self.camera_rng.bit_generator.state,
         }
-        path = self.run_dir / CHECKPOINT
-        return write_atomic(path, lambda tmp: torch.save(payload, tmp))
+
+        def save(tmp: Path) -> None:
+            # Through a Python file object, so a full disk raises OSError(ENOSPC) and not a
+            # torch stream error that never mentions space.
+            with open(tmp, "wb") as file:
+                torch.save(payload, file)
+
+        path = write_atomic(self.run_dir / CHECKPOINT, save)
+        self.checkpoint_iteration = self.state.iteration
+        return path
 
     def load_checkpoint(self, path: Path | None = None) -> None:
-        payload = read_checkpoint(path or self.run_dir / CHECKPOINT)
+        path = path or self.run_dir / CHECKPOINT
+        payload = read_checkpoint(path)
+        try:
+            self._restore(payload)
+        except (KeyError, TypeError, ValueError, RuntimeError) as err:  # weights of another config
+            raise LiquidGSError(f"{path}: checkpoint does not fit {CONFIG} ({type(err).__name__})") from None
+        self.checkpoint_iteration = self._resumed_from = self.state.iteration
+
+    def _restore(self, payload: dict) -> None:
         params = payload["params"]
         self.params = torch.nn.ParameterDict({k: torch.nn.Parameter(params[k].to(self.device)) for k in PARAM_KEYS})
         for key in PARAM_KEYS:
@@ -402,22 +462,45 @@ class Trainer:
 
 
 def read_checkpoint(path: Path) -> dict:
-    """A checkpoint's contents; an unreadable, truncated or foreign file is one error naming it."""
+    """A checkpoint's contents; an unreadable, truncated or foreign file is one error naming it.
+
+    weights_only=True: the payload holds only tensors, numbers, strings and plain containers,
+    so a crafted file cannot run code when a shared run folder is evaluated or resumed.
+    """
     try:
-        payload = torch.load(path, map_location="cpu", weights_only=False)
+        payload = torch.load(path, map_location="cpu", weights_only=True)
         if not isinstance(payload, dict) or payload.get("format") != CHECKPOINT_FORMAT:
             raise ValueError("not a liquidgs checkpoint")
         missing = [k for k in PARAM_KEYS if k not in payload["params"]]
         if missing:
             raise ValueError(f"missing parameters {missing}")
-    except Exception as err:  # noqa: BLE001 - any unpickling failure means a corrupt file
-        raise LiquidGSError(f"{path}: corrupt or unreadable checkpoint ({type(err).__name__}: {err})") from None
+    except Exception as err:  # noqa: BLE001 - any unpickling failure means a corrupt or unsafe file
+        first_line = (str(err).strip().splitlines() or [""])[0][:200]
+        raise LiquidGSError(f"{path}: corrupt or unreadable checkpoint ({type(err).__name__}: {first_line})") from None
     return payload
 
 
+def read_results(run_dir: Path) -> dict:
+    try:
+        return json.loads((run_dir / RESULTS).read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise LiquidGSError(f"{run_dir / RESULTS}: unreadable ({type(err).__name__})") from None
+
+
+def stale_temporaries(run_dir: Path) -> list[Path]:
+    """Temporaries of the run files that a process killed mid-write left behind."""
+    return [tmp for name in RUN_FILES for tmp in temporaries_of(run_dir / name)]
+
+
 def run_directory_state(run_dir: Path) -> str:
-    """'empty' (absent or empty folder), 'finished', 'unfinished', 'configured' or 'foreign'."""
-    if not run_dir.exists() or (run_dir.is_dir() and not any(run_dir.iterdir())):
+    """'empty' (absent, or holding only a lock / stale temporaries), 'finished', 'unfinished',
+    'configured' or 'foreign' (anything else, including a file where the folder should be)."""
+    if not run_dir.exists():
+        return "empty"
+    if not run_dir.is_dir():
+        return "foreign"
+    leftovers = {LOCK_NAME, *(tmp.name for tmp in stale_temporaries(run_dir))}
+    if all(entry.name in leftovers for entry in run_dir.iterdir()):
         return "empty"
     if not (run_dir / CONFIG).is_file():
         return "foreign"
