@@ -129,6 +129,20 @@ CASES = {
     "bench fields NaN seconds": (["bench", "fields", "--max-seconds", "nan"], "--max-seconds"),
     "bench fields bad field": (["bench", "fields", "--fields", "nerf"], "unknown field"),
     "bench fields bad device": (["bench", "fields", "--device", "tpu9"], "unknown device"),
+    # experiment
+    "experiment no action": (["experiment"], "usage: liquidgs experiment"),
+    "experiment bad action": (["experiment", "fly"], "unknown experiment action 'fly'"),
+    "experiment unknown spec": (["experiment", "run", "nope", "--data-root", "{work}"], "not a built-in spec"),
+    "experiment spec is a folder": (["experiment", "run", "{work}", "--data-root", "{work}"], "no such spec file"),
+    "experiment data root missing": (["experiment", "run", "mini", "--data-root", "{missing}"], "is not a folder"),
+    "experiment data root a file": (["experiment", "run", "mini", "--data-root", "{file}"], "is not a folder"),
+    "experiment scene missing": (["experiment", "run", "mini", "--data-root", "{work}"], "'scenes' names"),
+    "experiment parallel zero": (["experiment", "run", "mini", "--data-root", "{work}", "--parallel", "0"],
+                                 "--parallel must be >= 1"),  # fmt: skip
+    "experiment bad executor": (["experiment", "run", "mini", "--data-root", "{work}", "--executor", "slurm"],
+                                "--executor"),  # fmt: skip
+    "experiment report not one": (["experiment", "report", "{run}"], "not an experiment folder"),
+    "experiment report bad eval": (["experiment", "report", "{work}", "--eval", "best"], "--eval"),
     # demo
     "demo iterations zero": (["demo", "--out", "{work}/demo", "--iterations", "0"], "iterations"),
     "demo size zero": (["demo", "--out", "{work}/demo", "--size", "0"], "--size"),

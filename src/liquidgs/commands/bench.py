@@ -5,7 +5,7 @@ from __future__ import annotations
 import importlib
 import sys
 
-from liquidgs.commands.args import one_line_usage_errors
+from liquidgs.args import one_line_usage_errors
 
 BENCHMARKS = {
     "raster": "liquidgs.render.benchmark",

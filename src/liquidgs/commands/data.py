@@ -8,7 +8,7 @@ from typing import Literal
 
 import tyro
 
-from liquidgs.commands.args import parse_args
+from liquidgs.args import parse_args
 from liquidgs.data import DataConfig, check_dataset, generate_synthetic
 from liquidgs.errors import ConfigError
 

@@ -18,8 +18,8 @@ import numpy as np
 import torch
 from rich.console import Console
 
+from liquidgs.args import parse_args
 from liquidgs.atomic import write_text_atomic
-from liquidgs.commands.args import parse_args
 from liquidgs.data import DEFAULT_SYNTHETIC_SCENE, SYNTHETIC_SCENES, generate_synthetic, load_dataset
 from liquidgs.errors import ConfigError
 from liquidgs.eval.lpips import metric_name

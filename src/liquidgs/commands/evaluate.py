@@ -14,8 +14,8 @@ from typing import Literal
 import torch
 from rich.console import Console
 
+from liquidgs.args import parse_args
 from liquidgs.atomic import write_json_atomic
-from liquidgs.commands.args import parse_args
 from liquidgs.data import load_dataset
 from liquidgs.errors import ConfigError
 from liquidgs.eval import LPIPS, LPIPSUnavailable, evaluate_views

@@ -21,6 +21,7 @@ import tyro
 from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
+from liquidgs.args import parse_args
 from liquidgs.errors import ConfigError
 from liquidgs.experiments import BUILTIN_SPECS, expand, load_spec, read_manifest, write_manifest
 from liquidgs.experiments.plan import MANIFEST
@@ -63,6 +64,8 @@ def experiment_dir(spec_name: str, out: Path | None) -> Path:
 
 
 def run(args: RunArgs, console: Console) -> int:
+    if args.parallel is not None and args.parallel < 1:
+        raise ConfigError(f"--parallel must be >= 1, got {args.parallel}")
     spec = load_spec(args.spec)
     experiment = expand(spec, args.data_root, experiment_dir(spec.name, args.out))
     done = [r for r in experiment.runs if r.is_done(experiment.directory)]
@@ -138,9 +141,9 @@ def main(argv: list[str]) -> int:
     action, rest = argv[0], argv[1:]
     console = Console(stderr=True, soft_wrap=True)  # failure lines hold paths: never wrap them
     if action == "run":
-        return run(tyro.cli(RunArgs, args=rest, prog="liquidgs experiment run", description=__doc__), console)
+        return run(parse_args(RunArgs, rest, prog="liquidgs experiment run", description=__doc__), console)
     if action == "report":
-        return report(tyro.cli(ReportArgs, args=rest, prog="liquidgs experiment report", description=__doc__), console)
+        return report(parse_args(ReportArgs, rest, prog="liquidgs experiment report", description=__doc__), console)
     if action == "list":
         return list_specs()
     raise ConfigError(f"unknown experiment action '{action}' (run, report or list)")

@@ -16,8 +16,8 @@ import torch
 from rich.console import Console
 from rich.progress import track
 
+from liquidgs.args import parse_args
 from liquidgs.atomic import write_atomic
-from liquidgs.commands.args import parse_args
 from liquidgs.errors import ConfigError
 from liquidgs.gaussians import write_ply
 from liquidgs.train.run import TrainedRun, load_run

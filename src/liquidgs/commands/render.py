@@ -20,8 +20,8 @@ import torch
 from rich.console import Console
 from rich.progress import track
 
+from liquidgs.args import parse_args
 from liquidgs.atomic import write_json_atomic
-from liquidgs.commands.args import parse_args
 from liquidgs.data import load_dataset
 from liquidgs.errors import ConfigError
 from liquidgs.media import depth_to_uint8, to_uint8, write_png, write_video

@@ -16,7 +16,7 @@ from pathlib import Path
 from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
-from liquidgs.commands.args import one_line_usage_errors, parse_args
+from liquidgs.args import one_line_usage_errors, parse_args
 from liquidgs.errors import ConfigError
 from liquidgs.train.config import TrainConfig, config_hash, identity, load_yaml, preset_config, validate
 from liquidgs.train.runlock import run_folder_lock

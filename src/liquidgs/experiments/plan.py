@@ -7,14 +7,11 @@ training command itself would choose under the experiment's output folder.
 
 from __future__ import annotations
 
-import contextlib
-import io
 import json
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-import tyro
-
+from liquidgs.args import parse_args
 from liquidgs.atomic import write_json_atomic
 from liquidgs.errors import ConfigError, LiquidGSError
 from liquidgs.experiments.spec import ExperimentSpec, Grid
@@ -88,16 +85,11 @@ def _negated(name: str) -> str:
 def resolve_train_config(preset: str, args: list[str], source: str) -> TrainConfig:
     """The configuration `liquidgs train --preset PRESET ARGS` would run, or one error line."""
     data = Path(args[args.index("--data") + 1])
-    stderr = io.StringIO()
     try:
-        with contextlib.redirect_stderr(stderr), contextlib.redirect_stdout(io.StringIO()):
-            cfg = tyro.cli(TrainConfig, default=preset_config(preset, data), args=args, prog="liquidgs train")
-    except SystemExit:
-        # tyro prints a boxed message; its first "name: reason" line is the one that matters.
-        lines = [ln.strip(" │╭╮╰╯─") for ln in stderr.getvalue().splitlines()]
-        detail = next((ln for ln in lines if ":" in ln and not ln.lower().startswith(("usage", "argument"))), "")
-        raise ConfigError(f"{source}: not a valid `liquidgs train` setting ({detail or 'rejected'})") from None
-    validate(cfg)
+        cfg = parse_args(TrainConfig, args, prog="liquidgs train", default=preset_config(preset, data))
+        validate(cfg)
+    except ConfigError as err:
+        raise ConfigError(f"{source}: not a valid `liquidgs train` setting ({err})") from None
     return cfg
 
 

@@ -197,7 +197,7 @@ def run_experiment(
     """Run every unfinished run of the experiment; one outcome per run, in completion order."""
     if executor not in EXECUTORS:
         raise ConfigError(f"unknown executor '{executor}' (choose from {', '.join(EXECUTORS)})")
-    parallel = parallel or default_parallel()
+    parallel = default_parallel() if parallel is None else parallel
     if parallel < 1:
         raise ConfigError(f"--parallel must be >= 1, got {parallel}")
     directory = experiment.directory
