@@ -144,3 +144,11 @@ def test_eval_imports_no_pipeline_stage():
     )
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert result.stdout.strip() == "[]"
+
+
+def test_describe_lpips_names_the_metric_or_the_reason():
+    from liquidgs.eval import describe_lpips
+
+    assert describe_lpips({"lpips": 0.123456, "lpips_metric": "LPIPS-Alex"}) == "LPIPS-Alex 0.1235"
+    missing = {"lpips": None, "lpips_unavailable": "LPIPS-VGG unavailable: no vgg16 weights"}
+    assert describe_lpips(missing) == "(LPIPS-VGG unavailable: no vgg16 weights)"

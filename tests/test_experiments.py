@@ -293,7 +293,7 @@ def test_parallel_must_be_positive(data_root, tmp_path):
 # ----------------------------------------------------------------------------- Ray
 def test_ray_executor_runs_every_run_once_and_survives_a_killed_worker(data_root, tmp_path):
     spec = small_spec(
-        fields=["mlp"], overrides={**FAST, "iterations": 200, "checkpoint_every": 10, "eval": {"start": 200}}
+        fields=["mlp"], overrides={**FAST, "iterations": 100, "checkpoint_every": 10, "eval": {"start": 100}}
     )
     experiment = expand(spec_from_dict(spec, "s.yml"), data_root, tmp_path / "e")
     write_manifest(experiment)
@@ -329,7 +329,7 @@ def test_ray_executor_runs_every_run_once_and_survives_a_killed_worker(data_root
     log = (tmp_path / "e" / "logs" / f"{experiment.runs[0].name}.log").read_text()
     launches = [line for line in log.splitlines() if line.startswith("$ ")]
     assert len(launches) == 2 and launches[1].endswith("--resume")  # the retry resumed the checkpoint
-    assert json.loads((victim / "results.json").read_text())["final"]["iteration"] == 200
+    assert json.loads((victim / "results.json").read_text())["final"]["iteration"] == 100
 
 
 def test_ray_missing_is_one_clear_line(monkeypatch, data_root, tmp_path):

@@ -18,7 +18,7 @@ from liquidgs.args import parse_args
 from liquidgs.atomic import write_json_atomic
 from liquidgs.data import load_dataset
 from liquidgs.errors import ConfigError
-from liquidgs.eval import LPIPS, LPIPSUnavailable, evaluate_views
+from liquidgs.eval import LPIPS, LPIPSUnavailable, describe_lpips, evaluate_views
 from liquidgs.train.run import load_run
 from liquidgs.train.trainer import data_config
 
@@ -86,15 +86,10 @@ def evaluate_run(args: EvalArgs) -> dict:
 def main(argv: list[str]) -> int:
     args = parse_args(EvalArgs, argv, prog="liquidgs eval", description=__doc__)
     record = evaluate_run(args)
-    lpips_text = (
-        f"{record['lpips_metric']} {record['lpips']:.4f}"
-        if record["lpips"] is not None
-        else f"({record['lpips_unavailable']})"
-    )
     unfinished = "" if record["finished"] else f" (unfinished run, {record['iterations']} planned)"
     Console().print(
         f"{record['scene']} / {record['field']} @ {record['iteration']}{unfinished} ({record['split']}): "
-        f"PSNR {record['psnr']:.2f}  SSIM {record['ssim']:.4f}  {lpips_text} -> {args.run / 'eval.json'}",
+        f"PSNR {record['psnr']:.2f}  SSIM {record['ssim']:.4f}  {describe_lpips(record)} -> {args.run / 'eval.json'}",
         highlight=False,
         soft_wrap=True,
     )

@@ -18,6 +18,7 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, Ti
 
 from liquidgs.args import one_line_usage_errors, parse_args
 from liquidgs.errors import ConfigError
+from liquidgs.eval import describe_lpips
 from liquidgs.train.config import TrainConfig, config_hash, identity, load_yaml, preset_config, validate
 from liquidgs.train.runlock import run_folder_lock
 from liquidgs.train.trainer import (
@@ -180,10 +181,9 @@ def train(cfg: TrainConfig, run_dir: Path, console: Console | None = None, datas
         except KeyboardInterrupt:
             raise KeyboardInterrupt(interrupted_message(trainer, run_dir)) from None
     final = results["final"]
-    lpips = final.get("lpips")
     console.print(
         f"[bold]{cfg.field}[/] {results['scene']}: final PSNR {final['psnr']:.2f}  SSIM {final['ssim']:.4f}  "
-        f"LPIPS {lpips if lpips is None else round(lpips, 4)}  ({results['num_gaussians']} Gaussians, "
+        f"{describe_lpips(final)}  ({results['num_gaussians']} Gaussians, "
         f"{results['train_seconds']:.0f} s) -> {run_dir}"
     )
     return results

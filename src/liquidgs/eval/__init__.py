@@ -4,7 +4,7 @@ Importing this package loads no weights; an :class:`LPIPS` reads its files when 
 """
 
 from liquidgs.atomic import write_json_atomic  # results.json / per_view.json writer, shared project-wide
-from liquidgs.eval.evaluate import EvalFrame, evaluate_views
+from liquidgs.eval.evaluate import EvalFrame, describe_lpips, evaluate_views
 from liquidgs.eval.lpips import LPIPS, LPIPSUnavailable, lin_weights_path, resolve_backbone_weights
 from liquidgs.eval.metrics import psnr, quantize_8bit, ssim
 
@@ -12,6 +12,7 @@ __all__ = [
     "LPIPS",
     "EvalFrame",
     "LPIPSUnavailable",
+    "describe_lpips",
     "evaluate_views",
     "lin_weights_path",
     "psnr",

@@ -89,3 +89,10 @@ def evaluate_views(
     summary["n_views"] = len(per_view)
     summary["quantized_8bit"] = quantize
     return summary, per_view
+
+
+def describe_lpips(summary: dict) -> str:
+    """LPIPS of an evaluation summary for a one-line report: the metric and value, or why it is missing."""
+    if summary.get("lpips") is None:
+        return f"({summary.get('lpips_unavailable', 'LPIPS not computed')})"
+    return f"{summary.get('lpips_metric', 'LPIPS')} {summary['lpips']:.4f}"
