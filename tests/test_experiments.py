@@ -18,6 +18,7 @@ from liquidgs.cli import main as cli_main
 from liquidgs.data import generate_synthetic
 from liquidgs.errors import ConfigError, LiquidGSError
 from liquidgs.experiments import BUILTIN_SPECS, expand, load_spec, read_manifest, spec_from_dict, write_manifest
+from liquidgs.experiments.report import write_report
 from liquidgs.experiments.runner import run_experiment
 from liquidgs.train.config import load_yaml
 
@@ -280,6 +281,9 @@ def test_an_interrupted_grid_resumes_and_trains_every_run_once(data_root, tmp_pa
         assert results["final"]["iteration"] == 60
     interrupted = [r for r in experiment.runs if "--resume" in (out / "logs" / f"{r.name}.log").read_text()]
     assert len(interrupted) <= 1  # at most the run that was in flight was resumed
+    report = write_report(out).read_text()
+    n = len(experiment.runs)
+    assert f"{n} of {n} planned runs finished" in report and "None: every planned run finished." in report
 
 
 def test_parallel_must_be_positive(data_root, tmp_path):
