@@ -333,3 +333,41 @@ def test_the_sentence_names_where_noise_helps_hurts_and_ties():
     )
     assert "noise helps: sde-ou at 0.1 (+0.5" in sentence and "it hurts: sde-l0.1 at 0 (-0.4" in sentence
     assert "1 of 3 comparisons are ties" in sentence
+
+
+def test_the_report_answers_does_noise_help_on_hand_built_runs(tmp_path):
+    from liquidgs.experiments import Experiment, RunEntry, write_manifest
+    from liquidgs.experiments.report import write_report
+    from liquidgs.train.config import save_yaml
+
+    directory, data = tmp_path / "exp", tmp_path / "data"
+    data.mkdir()
+    runs = []
+    for variant, field, lam in (("cfc", "cfc", 0.0), ("sde-ou", "sde", 0.1)):
+        for perturb, strength in (("", 0.0), ("time_jitter", 0.1)):
+            for seed in (0, 1, 2):
+                run_dir = f"dnerf/hook/{variant}/{perturb}{strength}-s{seed}"
+                runs.append(RunEntry("dnerf", "hook", field, lam, seed, "tiny", str(data), run_dir, (), variant,
+                                     perturb, strength))  # fmt: skip
+                cfg = preset_config("tiny", data)
+                cfg.field, cfg.seed, cfg.lambda_ = field, seed, (lam if field == "sde" else None)
+                save_yaml(cfg, directory / run_dir / "config.yml")
+                # sde-ou gains 1 dB on every view under jitter, nothing (+-0.2 per view) when clean
+                gain = 1.0 if (field == "sde" and perturb) else 0.0
+                wobble = [0.2, -0.2, 0.1, -0.1] if field == "sde" else [0.0] * 4
+                views = [{"name": f"v{i}", "psnr": 25.0 + 0.3 * seed - 2 * strength + gain + w}
+                         for i, w in enumerate(wobble)]  # fmt: skip
+                psnr = float(np.mean([v["psnr"] for v in views]))
+                scores = {"psnr": psnr, "ssim": 0.9, "lpips": None}
+                results = {"final": scores, "best_of": scores, "fps": 10.0, "num_gaussians": 100,
+                           "field_parameters": 10, "field_flops_per_gaussian": 10, "train_seconds": 1.0,
+                           "peak_memory_mb": 1.0, "peak_memory_kind": "process_peak_rss", "device": "cpu"}  # fmt: skip
+                (directory / run_dir / "results.json").write_text(json.dumps(results))
+                (directory / run_dir / "per_view.json").write_text(json.dumps({"iteration": 1, "views": views}))
+    write_manifest(Experiment({"name": "stress-hand"}, str(data), directory, tuple(runs)))
+    text = write_report(directory).read_text()
+    assert (directory / "report" / "stress_time_jitter.png").is_file()
+    assert "| sde-ou | 0.1 | +1.000 |" in text and "**helps**" in text
+    assert "| sde-ou | 0 | +0.000 |" in text
+    assert "time jitter: noise helps: sde-ou at 0.1 (+1.00 dB); it hurts nowhere; 1 of 2 comparisons are ties" in text
+    assert "| 12 (3 runs) |" in text
