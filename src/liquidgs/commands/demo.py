@@ -20,13 +20,13 @@ from rich.console import Console
 
 from liquidgs.args import parse_args
 from liquidgs.atomic import write_text_atomic
-from liquidgs.data import DEFAULT_SYNTHETIC_SCENE, SYNTHETIC_SCENES, generate_synthetic, load_dataset
+from liquidgs.data import DEFAULT_SYNTHETIC_SCENE, SYNTHETIC_SCENES, generate_synthetic
 from liquidgs.errors import ConfigError
 from liquidgs.eval.lpips import metric_name
 from liquidgs.media import labelled, to_uint8, write_png, write_video
 from liquidgs.train.config import TrainConfig, preset_config, validate
 from liquidgs.train.run import TrainedRun, load_run
-from liquidgs.train.trainer import data_config
+from liquidgs.train.trainer import load_run_dataset
 
 FIELDS = {"mlp": "D-3DGS MLP", "cfc": "Liquid CfC", "sde": "SDE-LNN"}
 
@@ -81,7 +81,7 @@ def fastest_moving_frame(run: TrainedRun, frames) -> int:
 def write_report(args: DemoArgs, runs: dict[str, Path], data_path: Path) -> Path:
     loaded = {name: load_run(path, args.device) for name, path in runs.items()}
     results = {name: json.loads((path / "results.json").read_text()) for name, path in runs.items()}
-    dataset = load_dataset(data_config(loaded["mlp"].config))
+    dataset = load_run_dataset(loaded["mlp"].config)
     frames = sorted(dataset.test, key=lambda f: f.time)
     background = torch.tensor(dataset.background, dtype=torch.float32)
 

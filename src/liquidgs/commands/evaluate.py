@@ -16,11 +16,10 @@ from rich.console import Console
 
 from liquidgs.args import parse_args
 from liquidgs.atomic import write_json_atomic
-from liquidgs.data import load_dataset
 from liquidgs.errors import ConfigError
 from liquidgs.eval import LPIPS, LPIPSUnavailable, describe_lpips, evaluate_views
 from liquidgs.train.run import load_run
-from liquidgs.train.trainer import data_config
+from liquidgs.train.trainer import load_run_dataset
 
 
 @dataclass
@@ -42,7 +41,7 @@ def evaluate_run(args: EvalArgs) -> dict:
     backbone = args.lpips_backbone or cfg.eval.lpips_backbone
     normalize = cfg.eval.lpips_normalize if args.lpips_normalize is None else args.lpips_normalize
     quantize = cfg.eval.quantize_8bit if args.quantize_8bit is None else args.quantize_8bit
-    dataset = load_dataset(data_config(cfg))
+    dataset = load_run_dataset(cfg)
     if args.split not in dataset.splits:
         raise ConfigError(f"{cfg.data}: the dataset has no '{args.split}' split")
     try:

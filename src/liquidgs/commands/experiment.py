@@ -23,7 +23,7 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, Ti
 
 from liquidgs.args import parse_args
 from liquidgs.errors import ConfigError
-from liquidgs.experiments import BUILTIN_SPECS, expand, load_spec, read_manifest, write_manifest
+from liquidgs.experiments import BUILTIN_SPECS, expand, generate_scenes, load_spec, read_manifest, write_manifest
 from liquidgs.experiments.plan import MANIFEST
 from liquidgs.experiments.runner import RunOutcome, run_experiment
 
@@ -76,6 +76,8 @@ def run(args: RunArgs, console: Console) -> int:
         print(f"{len(experiment.runs)} runs ({len(done)} done) in {experiment.directory}; nothing was run (--dry-run)")
         return 0
     write_manifest(experiment)
+    for folder in generate_scenes(experiment):
+        console.print(f"generated the built-in scene {folder}")
     console.print(
         f"experiment {spec.name}: {len(experiment.runs)} runs, {len(done)} already done, executor {args.executor} "
         f"-> {experiment.directory}"
@@ -125,10 +127,7 @@ def report(args: ReportArgs, console: Console) -> int:
 
 def list_specs() -> int:
     for name, spec in BUILTIN_SPECS.items():
-        runs = sum(
-            len(g.scenes) * len(g.seeds) * sum(len(g.lambdas) if f == "sde" else 1 for f in g.fields)
-            for g in spec.grids
-        )
+        runs = sum(g.run_count() for g in spec.grids)
         print(f"{name:<13} {runs:>4} runs  {spec.description}")
     return 0
 

@@ -22,12 +22,11 @@ from rich.progress import track
 
 from liquidgs.args import parse_args
 from liquidgs.atomic import write_json_atomic
-from liquidgs.data import load_dataset
 from liquidgs.errors import ConfigError
 from liquidgs.media import depth_to_uint8, to_uint8, write_png, write_video
 from liquidgs.render.cameras import orbit
 from liquidgs.train.run import TrainedRun, load_run
-from liquidgs.train.trainer import data_config
+from liquidgs.train.trainer import load_run_dataset
 
 MAX_FRAMES = 100_000
 
@@ -90,7 +89,7 @@ def render_run(args: RenderArgs, console: Console | None = None) -> dict[str, Pa
         console.print(f"[yellow]note:[/] {args.run}: {run.progress_label}")
     if args.uncertainty_samples and run.config.field != "sde":
         raise ConfigError(f"--uncertainty-samples needs a run of the 'sde' field; {args.run} used '{run.config.field}'")
-    dataset = load_dataset(data_config(run.config))
+    dataset = load_run_dataset(run.config)
     frames = dataset.test or dataset.train
     if not 0 <= args.sweep_camera < len(frames):
         raise ConfigError(f"--sweep-camera {args.sweep_camera} is not a test view (0..{len(frames) - 1})")

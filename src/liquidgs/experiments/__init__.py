@@ -3,7 +3,14 @@
 Sits on top of train/ and eval/; nothing below imports it.
 """
 
-from liquidgs.experiments.plan import Experiment, RunEntry, expand, read_manifest, write_manifest
+from liquidgs.experiments.plan import (
+    Experiment,
+    RunEntry,
+    expand,
+    generate_scenes,
+    read_manifest,
+    write_manifest,
+)
 from liquidgs.experiments.spec import BUILTIN_SPECS, ExperimentSpec, Grid, load_spec, spec_from_dict
 
 __all__ = [
@@ -13,6 +20,7 @@ __all__ = [
     "Grid",
     "RunEntry",
     "expand",
+    "generate_scenes",
     "load_spec",
     "read_manifest",
     "spec_from_dict",

@@ -8,18 +8,23 @@ training command itself would choose under the experiment's output folder.
 from __future__ import annotations
 
 import json
+import os
+import shutil
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from liquidgs.args import parse_args
 from liquidgs.atomic import write_json_atomic
+from liquidgs.data import generate_synthetic
 from liquidgs.errors import ConfigError, LiquidGSError
-from liquidgs.experiments.spec import ExperimentSpec, Grid
+from liquidgs.experiments.spec import ExperimentSpec, Grid, SyntheticScene, Variant
 from liquidgs.train.config import TrainConfig, config_hash, preset_config, validate
 from liquidgs.train.trainer import RESULTS
 
 MANIFEST = "experiment.json"
 MANIFEST_FORMAT = "liquidgs-experiment-1"
+SCENES = "scenes"
+"""Sub-folder of an experiment holding the built-in scenes it generated."""
 
 
 @dataclass(frozen=True)
@@ -36,11 +41,21 @@ class RunEntry:
     run_dir: str
     train_args: tuple[str, ...]
     """`liquidgs train` arguments, without --out and --resume (the executor adds those)."""
+    variant: str = ""
+    """The spec's name for this field configuration ('' when fields x lambdas made it)."""
+    perturb: str = ""
+    """The perturbation ('time_jitter', ...) this run trains under; '' for the clean run."""
+    strength: float = 0.0
+
+    @property
+    def label(self) -> str:
+        """The field configuration, as the report names it."""
+        return Variant(self.variant, self.field, self.lambda_).label
 
     @property
     def name(self) -> str:
-        noise = f"-l{self.lambda_:g}" if self.field == "sde" else ""
-        return f"{self.dataset}-{self.scene}-{self.field}{noise}-s{self.seed}"
+        condition = f"-{self.perturb.replace('_', '-')}{self.strength:g}" if self.perturb else ""
+        return f"{self.dataset}-{self.scene}-{self.label}{condition}-s{self.seed}"
 
     def folder(self, experiment_dir: Path) -> Path:
         return Path(experiment_dir) / self.run_dir
@@ -57,6 +72,8 @@ class Experiment:
     data_root: str
     directory: Path
     runs: tuple[RunEntry, ...]
+    synthetic_scenes: tuple[tuple[SyntheticScene, Path], ...] = ()
+    """Built-in scenes the spec names and the folders `experiment run` generates them in."""
 
 
 def flag(key: str) -> str:
@@ -93,7 +110,33 @@ def resolve_train_config(preset: str, args: list[str], source: str) -> TrainConf
     return cfg
 
 
-def _scene_folder(data_root: Path, grid: Grid, scene: str, source: str) -> Path:
+def synthetic_folder(directory: Path, scene: SyntheticScene) -> Path:
+    """Where an experiment keeps a generated scene (its D-NeRF layout is what runs train on)."""
+    return Path(directory).resolve() / SCENES / scene.label
+
+
+def generate_scenes(experiment: Experiment) -> list[Path]:
+    """Render the built-in scenes the experiment trains on, once; returns those made now.
+
+    Each is rendered into a temporary folder renamed into place, so an interrupted generation
+    never leaves a half-written scene that a later run would train on.
+    """
+    made = []
+    for scene, folder in experiment.synthetic_scenes:
+        if folder.is_dir():
+            continue
+        tmp = folder.with_name(f".{folder.name}.tmp-{os.getpid()}")
+        shutil.rmtree(tmp, ignore_errors=True)
+        generate_synthetic(scene.name, tmp, size=scene.size)
+        os.replace(tmp, folder)
+        made.append(folder)
+    return made
+
+
+def _scene_folder(data_root: Path, directory: Path, grid: Grid, scene: str, source: str) -> Path:
+    synthetic = SyntheticScene.parse(scene, source)
+    if synthetic is not None:
+        return synthetic_folder(directory, synthetic) / "dnerf"
     for candidate in (data_root / scene, data_root / grid.dataset / scene):
         if candidate.is_dir():
             return candidate.resolve()
@@ -103,11 +146,26 @@ def _scene_folder(data_root: Path, grid: Grid, scene: str, source: str) -> Path:
     )
 
 
+def _field_args(variant: Variant) -> list[str]:
+    return ["--field", variant.field] + (["--lambda", repr(variant.lambda_)] if variant.field == "sde" else [])
+
+
 def _check_overrides(grid: Grid, data: Path, source: str) -> None:
-    """Each override alone, so the error names the key at fault."""
-    for key, value in grid.overrides.items():
-        args = ["--data", str(data), *override_args({key: value})]
-        resolve_train_config(grid.preset, args, f"{source}: overrides.{key}={value!r}")
+    """Every override mapping with the field it is for. When one fails, the error names the
+    first key that fails alone; settings that only fail together are named as their mapping."""
+    variants = grid.field_variants()
+    checks = [("overrides", variants[0], grid.overrides)]
+    checks += [(f"variants.{v.label}.overrides", v, v.overrides) for v in variants]
+    for where, variant, overrides in checks:
+        base = ["--data", str(data), *_field_args(variant)]
+        try:
+            resolve_train_config(grid.preset, base + override_args(overrides), "")
+            continue
+        except ConfigError:
+            pass
+        for key, value in overrides.items():
+            resolve_train_config(grid.preset, base + override_args({key: value}), f"{source}: {where}.{key}={value!r}")
+        resolve_train_config(grid.preset, base + override_args(overrides), f"{source}: {where}")
 
 
 def expand(spec: ExperimentSpec, data_root: str | Path, directory: str | Path) -> Experiment:
@@ -116,30 +174,45 @@ def expand(spec: ExperimentSpec, data_root: str | Path, directory: str | Path) -
     if not data_root.is_dir():
         raise ConfigError(f"{data_root}: --data-root is not a folder")
     runs: list[RunEntry] = []
+    synthetic: dict[SyntheticScene, Path] = {}
     for g, grid in enumerate(spec.grids):
         source = f"spec '{spec.name}'" + (f" grids[{g}]" if len(spec.grids) > 1 else "")
-        folders = {scene: _scene_folder(data_root, grid, scene, source) for scene in grid.scenes}
+        folders = {scene: _scene_folder(data_root, Path(directory), grid, scene, source) for scene in grid.scenes}
+        for scene in grid.scenes:
+            parsed = SyntheticScene.parse(scene, source)
+            if parsed is not None:
+                synthetic[parsed] = folders[scene].parent
         _check_overrides(grid, folders[grid.scenes[0]], source)
         for scene in grid.scenes:
-            for field in grid.fields:
-                for lam in grid.lambdas if field == "sde" else (0.0,):
+            parsed = SyntheticScene.parse(scene, source)
+            label = parsed.label if parsed is not None else scene
+            for variant in grid.field_variants():
+                for perturb, strength in grid.conditions():
+                    condition = {f"perturb.{perturb}": _strength_value(perturb, strength)} if perturb else {}
+                    overrides = {**grid.overrides, **variant.overrides, **condition}
                     for seed in grid.seeds:
-                        args = ["--data", str(folders[scene]), "--field", field, "--preset", grid.preset]
-                        if field == "sde":
-                            args += ["--lambda", repr(lam)]
-                        args += ["--seed", str(seed), *override_args(grid.overrides)]
-                        cfg = resolve_train_config(grid.preset, args, f"{source}: {scene}/{field}")
-                        run_dir = Path(grid.dataset) / scene / field / config_hash(cfg)
+                        args = ["--data", str(folders[scene]), *_field_args(variant), "--preset", grid.preset]
+                        args += ["--seed", str(seed), *override_args(overrides)]
+                        cfg = resolve_train_config(grid.preset, args, f"{source}: {scene}/{variant.label}")
+                        run_dir = Path(grid.dataset) / label / variant.field / config_hash(cfg)
                         runs.append(
-                            RunEntry(grid.dataset, scene, field, lam if field == "sde" else 0.0, seed, grid.preset,
-                                     str(folders[scene]), run_dir.as_posix(), tuple(args))  # fmt: skip
+                            RunEntry(grid.dataset, label, variant.field, variant.lambda_, seed, grid.preset,
+                                     str(folders[scene]), run_dir.as_posix(), tuple(args), variant.name, perturb,
+                                     strength)  # fmt: skip
                         )
     seen: dict[str, RunEntry] = {}
     for run in runs:
         if run.run_dir in seen:
             raise ConfigError(f"spec '{spec.name}': {run.name} and {seen[run.run_dir].name} are the same run")
         seen[run.run_dir] = run
-    return Experiment(spec.to_dict(), str(data_root.resolve()), Path(directory), tuple(runs))
+    return Experiment(
+        spec.to_dict(), str(data_root.resolve()), Path(directory), tuple(runs), tuple(synthetic.items())
+    )
+
+
+def _strength_value(perturb: str, strength: float) -> float | int:
+    """The `--perturb.*` value of a strength (keep_frames counts frames)."""
+    return int(strength) if perturb == "keep_frames" else strength
 
 
 def write_manifest(experiment: Experiment) -> Path:

@@ -12,20 +12,40 @@ A spec is one or more grids. The flat YAML form is one grid:
 
 A spec spanning datasets with different presets lists `grids:`, each a mapping of the same
 keys; keys at the top level are defaults every grid inherits.
+
+Stress tests add two keys. `variants:` names field configurations, in place of fields x lambdas:
+
+    variants:
+      cfc: {field: cfc}
+      sde-annealed: {field: sde, lambda: 0.1, overrides: {field_options.lambda_schedule: linear,
+                                                          field_options.lambda_decay_steps: 300}}
+
+`perturb:` maps a `--perturb.*` setting to the strengths to train at; strength 0 is the clean
+run, trained once and shared by every perturbation:
+
+    perturb: {time_jitter: [0, 0.02, 0.05], time_split: [0, 0.75]}
+
+A scene named `synthetic:NAME:SIZE` (e.g. synthetic:puppet:64) is the built-in synthetic
+scene NAME rendered at SIZE px, generated once under the experiment folder.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import yaml
 
+from liquidgs.data import SYNTHETIC_SCENES, PerturbConfig
 from liquidgs.errors import ConfigError
 from liquidgs.train.config import FIELDS, PRESETS
 
-GRID_KEYS = ("dataset", "preset", "scenes", "fields", "lambdas", "seeds", "overrides")
+GRID_KEYS = ("dataset", "preset", "scenes", "fields", "lambdas", "variants", "perturb", "seeds", "overrides")
+VARIANT_KEYS = ("field", "lambda", "overrides")
+PERTURBATIONS = tuple(f.name for f in dataclasses.fields(PerturbConfig))
+SYNTHETIC_PREFIX = "synthetic:"
 SPEC_KEYS = ("name", "description", "grids", *GRID_KEYS)
 
 DNERF_SCENES = ("hellwarrior", "mutant", "hook", "bouncingballs", "lego", "trex", "standup", "jumpingjacks")
@@ -34,6 +54,48 @@ NERFDS_SCENES = ("sieve", "plate", "bell", "press", "cup", "as", "basin")
 SHARED_DNERF_SCENES = ("bouncingballs", "hellwarrior", "lego", "standup")
 PAPER_LAMBDA = 0.05
 NOISE_STUDY_LAMBDAS = (0.0, 0.05, 0.1, 0.2)
+
+
+@dataclass(frozen=True)
+class Variant:
+    """A named field configuration: a field, its noise level and `liquidgs train` overrides."""
+
+    name: str
+    """'' for the rows fields x lambdas describe, which keep their usual names (e.g. sde-l0.05)."""
+    field: str
+    lambda_: float = 0.0
+    overrides: dict = field(default_factory=dict)
+
+    @property
+    def label(self) -> str:
+        if self.name:
+            return self.name
+        return f"{self.field}-l{self.lambda_:g}" if self.field == "sde" else self.field
+
+
+@dataclass(frozen=True)
+class SyntheticScene:
+    """A built-in synthetic scene a spec names as synthetic:NAME:SIZE."""
+
+    name: str
+    size: int
+
+    @property
+    def label(self) -> str:
+        return f"{self.name}-{self.size}px"
+
+    @classmethod
+    def parse(cls, scene: str, source: str) -> SyntheticScene | None:
+        """The synthetic scene `scene` names, or None when it names a folder."""
+        if not scene.startswith(SYNTHETIC_PREFIX):
+            return None
+        name, _, size = scene[len(SYNTHETIC_PREFIX) :].partition(":")
+        if name not in SYNTHETIC_SCENES or not size.isdigit() or not 8 <= int(size) <= 1024:
+            raise ConfigError(
+                f"{source}: scene '{scene}' must be synthetic:NAME:SIZE with NAME one of "
+                f"{', '.join(SYNTHETIC_SCENES)} and SIZE 8-1024 px"
+            )
+        return cls(name, int(size))
 
 
 @dataclass(frozen=True)
@@ -46,6 +108,26 @@ class Grid:
     lambdas: tuple[float, ...] = (PAPER_LAMBDA,)
     seeds: tuple[int, ...] = (0,)
     overrides: dict = field(default_factory=dict)
+    variants: tuple[Variant, ...] = ()
+    """Named field configurations; when empty, fields x lambdas (sde only) make the rows."""
+    perturb: tuple[tuple[str, tuple[float, ...]], ...] = ()
+    """(perturbation, strengths) pairs; the clean run (strength 0) is always trained."""
+
+    def field_variants(self) -> tuple[Variant, ...]:
+        if self.variants:
+            return self.variants
+        return tuple(
+            Variant("", name, lam if name == "sde" else 0.0)
+            for name in self.fields
+            for lam in (self.lambdas if name == "sde" else (0.0,))
+        )
+
+    def run_count(self) -> int:
+        return len(self.scenes) * len(self.field_variants()) * len(self.conditions()) * len(self.seeds)
+
+    def conditions(self) -> list[tuple[str, float]]:
+        """The clean condition ('', 0), then every (perturbation, non-zero strength)."""
+        return [("", 0.0)] + [(kind, s) for kind, strengths in self.perturb for s in strengths if s != 0]
 
 
 @dataclass(frozen=True)
@@ -67,6 +149,11 @@ class ExperimentSpec:
                     "lambdas": list(g.lambdas),
                     "seeds": list(g.seeds),
                     "overrides": dict(g.overrides),
+                    "variants": {
+                        v.label: {"field": v.field, "lambda": v.lambda_, "overrides": dict(v.overrides)}
+                        for v in g.variants
+                    },
+                    "perturb": {kind: list(strengths) for kind, strengths in g.perturb},
                 }
                 for g in self.grids
             ],
@@ -130,6 +217,73 @@ BUILTIN_SPECS: dict[str, ExperimentSpec] = {
 }
 
 
+def _stress_variants(lambdas: tuple[float, ...], variant_lambda: float, decay_steps: int, mlp: bool) -> tuple:
+    """The deterministic cells, sde at each lambda, and the smarter noise variants at `variant_lambda`."""
+    return (
+        *((Variant("mlp", "mlp"),) if mlp else ()),
+        Variant("cfc", "cfc"),
+        *(Variant(f"sde-l{lam:g}", "sde", lam) for lam in lambdas),
+        Variant("sde-annealed", "sde", variant_lambda, {
+            "field_options.lambda_schedule": "linear", "field_options.lambda_decay_steps": decay_steps}),
+        *((Variant("sde-adaptive", "sde", variant_lambda, {"field_options.adaptive_lambda": True}),) if mlp else ()),
+        Variant("sde-ou", "sde", variant_lambda, {"field_options.noise": "ou"}),
+    )  # fmt: skip
+
+
+STRESS_PERTURBATIONS = (
+    ("time_jitter", (0.0, 0.01, 0.03, 0.1)),
+    ("pose_rot_deg", (0.0, 0.5, 1.0, 2.0)),
+    ("pose_trans", (0.0, 0.005, 0.01, 0.02)),
+    ("keep_frames", (0.0, 40.0, 20.0, 10.0)),
+    ("time_split", (0.0, 0.5, 0.75)),
+    ("image_noise", (0.0, 0.02, 0.05, 0.1)),
+)
+STRESS_MINI_ITERATIONS = 300
+STRESS_MINI_OVERRIDES = {
+    "iterations": STRESS_MINI_ITERATIONS,
+    "warmup": 50,
+    "optim.means_lr_steps": STRESS_MINI_ITERATIONS,
+    "optim.field_lr_steps": STRESS_MINI_ITERATIONS,
+    "densify.start": 50,
+    "densify.stop": 250,
+    "eval.fps_frames": 10,
+}
+STRESS_MINI_GRID = dict(
+    preset="tiny",
+    variants=_stress_variants((0.1,), 0.1, 250, mlp=False),
+    perturb=(("time_jitter", (0.0, 0.03, 0.1)), ("time_split", (0.0, 0.75))),
+    seeds=(0, 1),
+    fields=("cfc", "sde"),
+)
+BUILTIN_SPECS["stress"] = ExperimentSpec(
+    "stress",
+    (
+        Grid("dnerf", "dnerf", SHARED_DNERF_SCENES, ("mlp", "cfc", "sde"), seeds=(0, 1, 2),
+             variants=_stress_variants(NOISE_STUDY_LAMBDAS[1:], 0.1, 20_000, mlp=True),
+             perturb=STRESS_PERTURBATIONS),
+    ),  # fmt: skip
+    "When does the noise help? MLP, CfC, SDE-LNN at lambda 0.05 / 0.1 / 0.2, and SDE-LNN (lambda 0.1) annealed "
+    "to 0 by step 20k, input-dependent, and with OU hidden-state noise, each under every perturbation of the "
+    "training split (time jitter, camera rotation and translation, fewer frames, extrapolation in time, image "
+    "noise) at 3-4 strengths, 0 included; the four shared D-NeRF scenes at full resolution, preset dnerf, 3 "
+    "seeds: 1,728 runs of 40,000 iterations, a job for a GPU cluster.",
+)
+BUILTIN_SPECS["stress-mini"] = ExperimentSpec(
+    "stress-mini",
+    (
+        Grid("synthetic", scenes=("synthetic:puppet:64",), overrides=STRESS_MINI_OVERRIDES, **STRESS_MINI_GRID),
+        Grid("dnerf", scenes=("bouncingballs",), overrides={**STRESS_MINI_OVERRIDES, "downscale": 8},
+             **STRESS_MINI_GRID),
+    ),  # fmt: skip
+    "The stress test at CPU scale: CfC, SDE-LNN (lambda 0.1), and SDE-LNN annealed to 0 by step 250 and with OU "
+    "hidden-state noise, under time jitter (0.03, 0.1) and extrapolation in time (train t < 0.75), 2 seeds, on "
+    "the built-in puppet scene at 64 px (generated under the experiment folder) and the shared D-NeRF "
+    "bouncingballs at 1/8 (100x100): 64 runs of 300 iterations of the tiny schedule (warm-up 50, decay and "
+    "densification scaled to match). Estimate at 100-150 ms per iteration plus ~10 s of start-up and "
+    "evaluation per run: 45-55 minutes on a 2-core CPU with one run at a time.",
+)
+
+
 def _as_tuple(value, key: str, source: str, kind) -> tuple:
     values = value if isinstance(value, (list, tuple)) else [value]
     if not values:
@@ -146,35 +300,97 @@ def _as_tuple(value, key: str, source: str, kind) -> tuple:
     return tuple(out)
 
 
+def _check_field(name, source: str, key: str) -> None:
+    if name not in FIELDS:
+        raise ConfigError(f"{source}: '{key}' names unknown field '{name}' (choose from {', '.join(FIELDS)})")
+
+
+def _check_lambda(lam: float, source: str, key: str) -> None:
+    if not math.isfinite(lam) or lam < 0:
+        raise ConfigError(f"{source}: '{key}' must be finite and >= 0, got {lam}")
+
+
+def _overrides(raw, source: str, key: str = "overrides") -> dict:
+    overrides = raw or {}
+    if not isinstance(overrides, dict):
+        raise ConfigError(f"{source}: '{key}' must be a mapping of `liquidgs train` settings")
+    return _flatten(overrides)
+
+
+def _variants(raw, source: str) -> tuple[Variant, ...]:
+    if not isinstance(raw, dict) or not raw:
+        raise ConfigError(f"{source}: 'variants' must be a non-empty mapping of name -> {{field, lambda, overrides}}")
+    variants = []
+    for name, body in raw.items():
+        where = f"variants.{name}"
+        if not isinstance(name, str) or not name or "/" in name or name.startswith("."):
+            raise ConfigError(f"{source}: variant names must be non-empty folder-safe strings, got {name!r}")
+        if not isinstance(body, dict) or "field" not in body:
+            raise ConfigError(f"{source}: '{where}' must be a mapping with a 'field'")
+        unknown = [k for k in body if k not in VARIANT_KEYS]
+        if unknown:
+            raise ConfigError(f"{source}: '{where}' has unknown key '{unknown[0]}' (known: {', '.join(VARIANT_KEYS)})")
+        _check_field(body["field"], source, f"{where}.field")
+        default_lambda = PAPER_LAMBDA if body["field"] == "sde" else 0.0
+        lam = body.get("lambda", default_lambda)
+        if isinstance(lam, bool) or not isinstance(lam, (int, float)):
+            raise ConfigError(f"{source}: '{where}.lambda' must be a number, got {lam!r}")
+        _check_lambda(float(lam), source, f"{where}.lambda")
+        overrides = _overrides(body.get("overrides"), source, f"{where}.overrides")
+        variants.append(Variant(name, body["field"], float(lam), overrides))
+    return tuple(variants)
+
+
+def _perturb(raw, source: str) -> tuple[tuple[str, tuple[float, ...]], ...]:
+    if not isinstance(raw, dict):
+        raise ConfigError(f"{source}: 'perturb' must be a mapping of perturbation -> strengths")
+    out = []
+    for kind, strengths in raw.items():
+        key = str(kind).replace("-", "_")
+        if key not in PERTURBATIONS:
+            raise ConfigError(f"{source}: 'perturb' names unknown perturbation '{kind}' ({', '.join(PERTURBATIONS)})")
+        values = _as_tuple(strengths, f"perturb.{key}", source, float)
+        for value in values:
+            if not math.isfinite(value) or value < 0 or (key == "keep_frames" and value != int(value)):
+                kind_of = "whole numbers" if key == "keep_frames" else "finite numbers"
+                raise ConfigError(f"{source}: 'perturb.{key}' must hold {kind_of} >= 0 (0: clean), got {value!r}")
+        out.append((key, tuple(dict.fromkeys(values))))
+    return tuple(out)
+
+
 def _grid(raw: dict, source: str) -> Grid:
-    missing = [k for k in ("preset", "scenes", "fields") if k not in raw]
+    required = ("preset", "scenes") if "variants" in raw else ("preset", "scenes", "fields")
+    missing = [k for k in required if k not in raw]
     if missing:
         raise ConfigError(f"{source}: missing key '{missing[0]}'")
+    if "variants" in raw and ("fields" in raw or "lambdas" in raw):
+        raise ConfigError(f"{source}: give either 'variants' or 'fields'/'lambdas', not both")
     preset = raw["preset"]
     if preset not in PRESETS:
         raise ConfigError(f"{source}: 'preset' is '{preset}' (choose from {', '.join(PRESETS)})")
-    fields = _as_tuple(raw["fields"], "fields", source, str)
+    variants = _variants(raw["variants"], source) if "variants" in raw else ()
+    fields = tuple(dict.fromkeys(v.field for v in variants)) or _as_tuple(raw["fields"], "fields", source, str)
     for name in fields:
-        if name not in FIELDS:
-            raise ConfigError(f"{source}: 'fields' names unknown field '{name}' (choose from {', '.join(FIELDS)})")
+        _check_field(name, source, "fields")
     lambdas = _as_tuple(raw.get("lambdas", PAPER_LAMBDA), "lambdas", source, float)
     for lam in lambdas:
-        if not math.isfinite(lam) or lam < 0:
-            raise ConfigError(f"{source}: 'lambdas' must be finite and >= 0, got {lam}")
+        _check_lambda(lam, source, "lambdas")
     seeds = _as_tuple(raw.get("seeds", 0), "seeds", source, int)
     if any(s < 0 for s in seeds):
         raise ConfigError(f"{source}: 'seeds' must be >= 0, got {list(seeds)}")
-    overrides = raw.get("overrides") or {}
-    if not isinstance(overrides, dict):
-        raise ConfigError(f"{source}: 'overrides' must be a mapping of `liquidgs train` settings")
+    scenes = _as_tuple(raw["scenes"], "scenes", source, str)
+    for scene in scenes:
+        SyntheticScene.parse(scene, source)
     return Grid(
         dataset=str(raw.get("dataset", preset)),
         preset=preset,
-        scenes=_as_tuple(raw["scenes"], "scenes", source, str),
+        scenes=scenes,
         fields=fields,
         lambdas=tuple(dict.fromkeys(lambdas)),
         seeds=tuple(dict.fromkeys(seeds)),
-        overrides=_flatten(overrides),
+        overrides=_overrides(raw.get("overrides"), source),
+        variants=variants,
+        perturb=_perturb(raw.get("perturb", {}), source),
     )
 
 

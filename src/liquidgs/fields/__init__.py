@@ -29,6 +29,7 @@ from liquidgs.fields.config import (
     PRESETS,
     SCHEDULES,
     FieldConfig,
+    FieldOptions,
 )
 from liquidgs.fields.encoding import PositionalEncoding, TimeFeatures
 from liquidgs.fields.liquid import LiquidField, schedule_factor
@@ -45,6 +46,7 @@ __all__ = [
     "Deltas",
     "DeformationField",
     "FieldConfig",
+    "FieldOptions",
     "LiquidCell",
     "LiquidField",
     "MLPField",

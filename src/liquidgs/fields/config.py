@@ -86,13 +86,13 @@ def family(name: str) -> str:
 
 
 @dataclass
-class FieldConfig:
-    """Settings of one deformation field. None means "from the preset"."""
+class FieldOptions:
+    """Sizes and noise variants of a field: everything but which field it is (name, preset, lambda).
 
-    name: Literal["static", "mlp", "cfc", "sde"] = "cfc"
-    preset: Literal["dnerf", "nerfds", "tiny"] = "dnerf"
-    lambda_: float | None = None
-    """Noise level of the 'sde' field (None: 0.05, the paper's value); must be 0 for the others."""
+    Not validated on its own: most rules depend on the field's name, so they are checked once,
+    when a FieldConfig is built from these options and a name (train's --field-options.*).
+    None means "from the preset".
+    """
 
     # Encodings, shared by the MLP and liquid fields.
     xyz_freqs: int | None = None
@@ -131,6 +131,20 @@ class FieldConfig:
     """Euler step of the solver variant, in units of the elapsed time normalised to [0, 1]."""
     ltc_leak: float = 0.0
     """1 / tau_c of the hidden-state drift -(1/tau_c + f) h + f A (0: the pure OU form)."""
+
+
+@dataclass
+class FieldConfig(FieldOptions):
+    """Settings of one deformation field, validated when built."""
+
+    name: Literal["static", "mlp", "cfc", "sde"] = "cfc"
+    preset: Literal["dnerf", "nerfds", "tiny"] = "dnerf"
+    lambda_: float | None = None
+    """Noise level of the 'sde' field (None: 0.05, the paper's value); must be 0 for the others."""
+
+    @classmethod
+    def of(cls, options: FieldOptions, name: str, preset: str, lambda_: float | None) -> FieldConfig:
+        return cls(**dataclasses.asdict(options), name=name, preset=preset, lambda_=lambda_)
 
     def __post_init__(self) -> None:
         self._validate(self._resolved_values())

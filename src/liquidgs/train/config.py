@@ -16,8 +16,9 @@ import tyro
 import yaml
 
 from liquidgs.atomic import write_text_atomic
+from liquidgs.data.perturb import PerturbConfig
 from liquidgs.errors import ConfigError
-from liquidgs.fields import FieldConfig
+from liquidgs.fields import FieldConfig, FieldOptions
 from liquidgs.train.strategy import DensifyConfig
 
 PRESETS = ("dnerf", "nerfds", "tiny")
@@ -98,16 +99,16 @@ class TrainConfig:
     checkpoint_every: int = 5000
     divergence_drop_db: float = 10.0
     """Stop when the smoothed training PSNR falls this far below its best (after warm-up)."""
-    field_options: FieldConfig = dataclasses.field(default_factory=lambda: FieldConfig(name="mlp"))
+    field_options: FieldOptions = dataclasses.field(default_factory=FieldOptions)
     """Field sizes and noise variants (name, preset and lambda come from the flags above)."""
+    perturb: PerturbConfig = dataclasses.field(default_factory=PerturbConfig)
+    """Stress tests: corrupt or thin out the training split (test views stay clean)."""
     optim: OptimConfig = dataclasses.field(default_factory=OptimConfig)
     densify: DensifyConfig = dataclasses.field(default_factory=DensifyConfig)
     eval: EvalConfig = dataclasses.field(default_factory=EvalConfig)
 
     def field_config(self) -> FieldConfig:
-        return dataclasses.replace(
-            self.field_options, name=self.field, preset=self.preset, lambda_=self.resolved_lambda()
-        )
+        return FieldConfig.of(self.field_options, self.field, self.preset, self.resolved_lambda())
 
     def resolved_lambda(self) -> float:
         if self.lambda_ is None:
@@ -232,6 +233,8 @@ def validate(cfg: TrainConfig) -> None:
         raise ConfigError("the 'cfc' field is the deterministic cell (lambda = 0); use --field sde for noise")
     if cfg.downscale is not None and cfg.downscale < 1:
         raise ConfigError(f"downscale must be >= 1, got {cfg.downscale}")
+    cfg.field_config()  # the field's own rules, now that its name, preset and lambda are known
+    cfg.perturb.validate()
 
 
 def to_dict(cfg: TrainConfig) -> dict:
@@ -251,11 +254,21 @@ def to_dict(cfg: TrainConfig) -> dict:
 _NOT_IDENTITY = ("out", "resume", "device", "backend", "checkpoint_every")
 
 
+# Before field_options lost them, it held a placeholder name, preset and lambda that never took
+# effect; config hashes (and so run folder names) were computed with them and must not change.
+_LEGACY_FIELD_OPTIONS = {"name": "mlp", "preset": "dnerf", "lambda_": None}
+
+
 def identity(cfg: TrainConfig) -> dict:
+    """What a run computes from. An unperturbed run has no 'perturb' key, so it hashes as it
+    did before perturbations existed."""
     d = to_dict(cfg)
     for key in _NOT_IDENTITY:
         d.pop(key, None)
     d["data"] = str(Path(d["data"]).resolve())
+    d["field_options"] = {**_LEGACY_FIELD_OPTIONS, **d["field_options"]}
+    if not cfg.perturb.active:
+        del d["perturb"]
     return d
 
 
@@ -328,4 +341,7 @@ def from_dict(raw: dict, source: Path | str = "config") -> TrainConfig:
             kwargs[key] = Path(value) if is_path and value is not None else value
         return cls(**kwargs)
 
+    raw = dict(raw)
+    if isinstance(raw.get("field_options"), dict):  # config.yml of an older version: drop the placeholders
+        raw["field_options"] = {k: v for k, v in raw["field_options"].items() if k not in _LEGACY_FIELD_OPTIONS}
     return build(TrainConfig, raw, "")

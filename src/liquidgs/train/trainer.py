@@ -19,7 +19,7 @@ import numpy as np
 import torch
 
 from liquidgs.atomic import temporaries_of, write_atomic, write_json_atomic
-from liquidgs.data import DataConfig, SceneDataset, load_dataset, spread_extent
+from liquidgs.data import DataConfig, SceneDataset, load_dataset, perturb_dataset, spread_extent
 from liquidgs.data.scene import MIN_CAMERA_EXTENT
 from liquidgs.errors import ConfigError, LiquidGSError
 from liquidgs.eval import LPIPS, LPIPSUnavailable, evaluate_views, ssim
@@ -67,6 +67,12 @@ def data_config(cfg: TrainConfig) -> DataConfig:
     )
 
 
+def load_run_dataset(cfg: TrainConfig, clean: SceneDataset | None = None) -> SceneDataset:
+    """The scene as this run sees it: `clean` (else read from cfg.data) with cfg.perturb applied,
+    so training, evaluation and renders of a perturbed run use the same splits."""
+    return perturb_dataset(clean if clean is not None else load_dataset(data_config(cfg)), cfg.perturb, cfg.seed)
+
+
 def make_lpips(cfg: TrainConfig, device: torch.device) -> tuple[LPIPS | None, str | None]:
     """The LPIPS metric, or None and the reason it is unavailable (reported, never skipped silently)."""
     try:
@@ -100,7 +106,7 @@ class Trainer:
         self.device = resolve_device(cfg.device)
         if cfg.backend == "gsplat" and self.device.type != "cuda":
             raise ConfigError("--backend gsplat needs a CUDA device (gsplat has no CPU path); use auto or torch")
-        self.dataset = dataset if dataset is not None else load_dataset(data_config(cfg))
+        self.dataset = load_run_dataset(cfg, dataset)  # `dataset`, when given, is the clean scene
         if not self.dataset.train:
             raise LiquidGSError(f"{cfg.data}: the training split is empty")
         self.background = torch.tensor(self.dataset.background, dtype=torch.float32, device=self.device)
@@ -405,6 +411,8 @@ class Trainer:
             "lpips_backbone": cfg.eval.lpips_backbone,
             "lpips_normalize": cfg.eval.lpips_normalize,
             "resolution": [self.dataset.train[0].width, self.dataset.train[0].height],
+            "perturb": cfg.perturb.settings(),
+            "views": {"train": len(self.dataset.train), "test": len(self.dataset.test)},
         }
         write_json_atomic(self.run_dir / PER_VIEW, {"iteration": cfg.iterations, "views": per_view})
         write_json_atomic(self.run_dir / RESULTS, results)

@@ -6,8 +6,10 @@ atomically); every other planned run is listed as missing, never silently droppe
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -79,6 +81,12 @@ class Collection:
 
     def runs(self, dataset: str) -> list[RunRecord]:
         return [r for r in self.finished if r.entry.dataset == dataset]
+
+    def restricted(self, keep: Callable[[RunEntry], bool]) -> Collection:
+        """The same experiment with only the planned runs `keep` accepts."""
+        experiment = dataclasses.replace(self.experiment, runs=tuple(r for r in self.experiment.runs if keep(r)))
+        finished = tuple(r for r in self.finished if keep(r.entry))
+        return Collection(experiment, finished, tuple(r for r in self.missing if keep(r)))
 
 
 def _read_json(path: Path, what: str) -> dict:

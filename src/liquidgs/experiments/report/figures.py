@@ -9,14 +9,13 @@ import numpy as np
 import torch
 
 from liquidgs.atomic import write_atomic
-from liquidgs.data import load_dataset
 from liquidgs.errors import LiquidGSError
 from liquidgs.experiments.report.aggregate import DatasetScores
 from liquidgs.experiments.report.collect import Method, RunRecord
 from liquidgs.experiments.spec import PAPER_LAMBDA
 from liquidgs.media import labelled, to_uint8, write_png
 from liquidgs.train.run import load_run
-from liquidgs.train.trainer import data_config
+from liquidgs.train.trainer import load_run_dataset
 
 QUALITATIVE_SCENES = 3
 PANEL = 192
@@ -135,7 +134,7 @@ def _scene_row(scene: str, gain: float, seed: int, mlp: RunRecord, sde: RunRecor
     if not common:
         raise LiquidGSError("the two runs' per_view.json share no test view")
     view = max(sorted(common), key=lambda name: sde_views[name] - mlp_views[name])
-    dataset = load_dataset(data_config(sde.config))
+    dataset = load_run_dataset(sde.config)
     frame = next((f for f in dataset.test if f.name == view), None)
     if frame is None:
         raise LiquidGSError(f"test view '{view}' of per_view.json is not in {sde.config.data}")

@@ -28,6 +28,7 @@ from liquidgs.experiments.report.references import (
     reference_scenes,
 )
 from liquidgs.experiments.report.references import references as reference_rows
+from liquidgs.experiments.report.stress import is_paper_run, perturbations, stress_section
 from liquidgs.experiments.report.tables import (
     MARKDOWN_LEGEND,
     METRICS,
@@ -272,6 +273,11 @@ def write_report(
         "",
     ]
     tex = [TEX_HEADER]
+    stress = collection
+    if not all(is_paper_run(r) for r in collection.experiment.runs):
+        collection = collection.restricted(is_paper_run)
+        md += ["The tables up to the stress section cover the clean runs of plain fields; the stress section "
+               "covers every run.", ""]  # fmt: skip
     per_dataset = [DatasetScores.build(collection, d, evaluation) for d in collection.datasets()]
     md += ["## Per-scene results", ""]
     for scores in per_dataset:
@@ -280,6 +286,8 @@ def write_report(
     for scores in per_dataset:
         _spread_section(scores, md)
     _noise_section(collection, evaluation, references, out_dir, md, tex)
+    if perturbations(stress):
+        stress_section(stress, evaluation, out_dir, md)
     md += ["## Cost", ""]
     for scores in per_dataset:
         _cost_section(scores, references, md, tex)
@@ -287,9 +295,9 @@ def write_report(
     for scores in per_dataset:
         _qualitative_section(scores, evaluation, out_dir, md)
     md += ["## Missing runs", ""]
-    if collection.missing:
-        md.append(f"{len(collection.missing)} planned run(s) have no results.json yet:")
-        md += [f"- {run.name}: `{run.run_dir}`" for run in collection.missing]
+    if stress.missing:
+        md.append(f"{len(stress.missing)} planned run(s) have no results.json yet:")
+        md += [f"- {run.name}: `{run.run_dir}`" for run in stress.missing]
     else:
         md.append("None: every planned run finished.")
     md.append("")

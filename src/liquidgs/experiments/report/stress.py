@@ -1,0 +1,183 @@
+"""The stress-test section: does the noise help under corrupted or sparse supervision?
+
+For each perturbation: test PSNR against its strength per field configuration (one PNG), a
+table of each sde variant minus the deterministic CfC at each strength with a paired
+confidence interval (significance.py), and one sentence saying where noise helps, hurts or ties.
+The clean runs (strength 0) are shared by every perturbation.
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from liquidgs.atomic import write_atomic
+from liquidgs.experiments.plan import RunEntry
+from liquidgs.experiments.report.collect import Collection, RunRecord
+from liquidgs.experiments.report.significance import (
+    CONFIDENCE,
+    PairedDifference,
+    paired_difference,
+    per_view_differences,
+)
+from liquidgs.experiments.report.tables import PlainTable
+from liquidgs.experiments.spec import Variant
+
+BASELINE = "cfc"
+"""What every sde variant is compared with: the same cell without noise."""
+PERTURBATION_TEXT = {
+    "time_jitter": "time jitter (std of the timestamp noise)",
+    "pose_rot_deg": "camera rotation (RMS angle, degrees)",
+    "pose_trans": "camera translation (RMS shift, x camera extent)",
+    "keep_frames": "fewer frames (training frames kept; 0 = all)",
+    "time_split": "extrapolation in time (train t < T0, test t >= T0; 0 = interpolation)",
+    "image_noise": "image noise (std on pixel values in [0, 1])",
+}
+
+
+@dataclass(frozen=True)
+class Comparison:
+    variant: str
+    strength: float
+    difference: PairedDifference
+
+
+def is_paper_run(entry: RunEntry) -> bool:
+    """A clean run of a plain field configuration: what the per-scene, noise-study and cost
+    tables describe (a named variant such as sde-ou would share a row with plain sde there)."""
+    return not entry.perturb and entry.label == Variant("", entry.field, entry.lambda_).label
+
+
+def perturbations(collection: Collection) -> list[str]:
+    return list(dict.fromkeys(r.perturb for r in collection.experiment.runs if r.perturb))
+
+
+def _runs_at(collection: Collection, perturb: str, strength: float) -> list[RunRecord]:
+    if strength == 0:
+        return [r for r in collection.finished if not r.entry.perturb]
+    return [r for r in collection.finished if r.entry.perturb == perturb and r.entry.strength == strength]
+
+
+def strengths(collection: Collection, perturb: str) -> list[float]:
+    return sorted({0.0} | {r.strength for r in collection.experiment.runs if r.perturb == perturb})
+
+
+def variants(collection: Collection) -> list[str]:
+    return list(dict.fromkeys(r.label for r in collection.experiment.runs))
+
+
+def psnr_curve(collection: Collection, perturb: str, variant: str, evaluation: str):
+    """(strength, mean, std over seeds or None) per strength where every scene of a seed finished.
+
+    A seed's value is its mean PSNR over the experiment's scenes, so every point averages the
+    same scenes."""
+    scenes = {(r.dataset, r.scene) for r in collection.experiment.runs}
+    points = []
+    for strength in strengths(collection, perturb):
+        by_seed: dict[int, dict] = defaultdict(dict)
+        for run in _runs_at(collection, perturb, strength):
+            if run.entry.label == variant:
+                by_seed[run.entry.seed][(run.entry.dataset, run.entry.scene)] = run.evaluation(evaluation)["psnr"]
+        seeds = [np.mean(list(values.values())) for values in by_seed.values() if set(values) == scenes]
+        if seeds:
+            std = float(np.std(seeds, ddof=1)) if len(seeds) > 1 else None
+            points.append((strength, float(np.mean(seeds)), std))
+    return points
+
+
+def compare(collection: Collection, perturb: str) -> list[Comparison]:
+    """Each sde variant minus the CfC at each strength, paired by scene, seed and test view."""
+    comparisons = []
+    for strength in strengths(collection, perturb):
+        runs = _runs_at(collection, perturb, strength)
+        baseline = {
+            (r.entry.dataset, r.entry.scene, r.entry.seed): r.per_view
+            for r in runs
+            if r.entry.label == BASELINE and r.per_view is not None
+        }
+        clusters: dict[str, list[np.ndarray]] = defaultdict(list)
+        for run in runs:
+            key = (run.entry.dataset, run.entry.scene, run.entry.seed)
+            if run.entry.field == "sde" and run.per_view is not None and key in baseline:
+                clusters[run.entry.label].append(per_view_differences(run.per_view, baseline[key]))
+        for variant, diffs in clusters.items():
+            if any(len(d) for d in diffs):
+                comparisons.append(Comparison(variant, strength, paired_difference(diffs)))
+    return comparisons
+
+
+def verdict_sentence(perturb: str, comparisons: list[Comparison]) -> str:
+    """Where noise helps, hurts and ties under one perturbation, in words."""
+    if not comparisons:
+        return f"{perturb}: no sde variant has a finished CfC run to be compared with."
+
+    def listed(verdict: str) -> list[str]:
+        return [
+            f"{c.variant} at {c.strength:g} ({c.difference.mean:+.2f} dB)"
+            for c in comparisons
+            if c.difference.verdict == verdict
+        ]
+
+    helps, hurts = listed("helps"), listed("hurts")
+    ties = sum(c.difference.verdict == "tie" for c in comparisons)
+    parts = [f"noise helps: {', '.join(helps)}" if helps else "noise helps nowhere"]
+    parts.append(f"it hurts: {', '.join(hurts)}" if hurts else "it hurts nowhere")
+    parts.append(f"{ties} of {len(comparisons)} comparisons are ties (the interval includes 0)")
+    return f"{perturb.replace('_', ' ')}: " + "; ".join(parts) + "."
+
+
+def strength_plot(path: Path, perturb: str, curves: dict[str, list[tuple[float, float, float | None]]]) -> Path:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(5.5, 3.6))
+    for variant, points in curves.items():
+        xs, means, stds = zip(*points)
+        ax.errorbar(xs, means, yerr=[s or 0.0 for s in stds], marker="o", capsize=3, label=variant)
+    ax.set_xlabel(PERTURBATION_TEXT.get(perturb, perturb))
+    ax.set_ylabel("test PSNR (dB)")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    try:
+        return write_atomic(path, lambda tmp: fig.savefig(tmp, format="png", dpi=120))
+    finally:
+        plt.close(fig)
+
+
+def stress_section(collection: Collection, evaluation: str, out_dir: Path, md: list[str]) -> None:
+    md += [
+        "## Stress tests: does the noise help?",
+        "",
+        f"Each sde variant minus the deterministic CfC ({BASELINE}), paired on the same scene, seed and "
+        f"perturbation and matched by test view (final evaluation, per_view.json). Interval: "
+        f"{CONFIDENCE:.0%} two-level bootstrap (resampling the scene-seed pairs, then their test views); "
+        "**significant** only where it excludes 0. Strength 0 is the clean run every perturbation shares.",
+        "",
+    ]
+    for perturb in perturbations(collection):
+        md += [f"### {PERTURBATION_TEXT.get(perturb, perturb)}", ""]
+        curves = {v: psnr_curve(collection, perturb, v, evaluation) for v in variants(collection)}
+        curves = {v: points for v, points in curves.items() if points}
+        if curves:
+            path = strength_plot(out_dir / f"stress_{perturb}.png", perturb, curves)
+            md += [
+                f"![test PSNR against {perturb}]({path.name}) Test PSNR ({evaluation} evaluation, mean over the "
+                "scenes) against strength; error bars: std over seeds (none where one seed finished).",
+                "",
+            ]
+        comparisons = compare(collection, perturb)
+        table = PlainTable(["variant", "strength", "minus CfC (dB)", f"{CONFIDENCE:.0%} interval", "pairs", "verdict"])
+        for c in comparisons:
+            d = c.difference
+            verdict = f"**{d.verdict}**" if d.verdict != "tie" else "tie"
+            table.add(c.variant, c.variant, [f"{c.strength:g}", f"{d.mean:+.3f}", f"[{d.low:+.3f}, {d.high:+.3f}]",
+                                             f"{d.pairs} ({d.clusters} runs)", verdict])  # fmt: skip
+        if comparisons:
+            md += [table.to_markdown()]
+        md += [verdict_sentence(perturb, comparisons), ""]

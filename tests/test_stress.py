@@ -1,0 +1,373 @@
+"""Stress tests: perturbed training data, every noise variant through `liquidgs train`, the
+stress specs, and the significance code of the 'does noise help?' report."""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+import yaml
+
+from liquidgs.cli import main as cli_main
+from liquidgs.data import DataConfig, PerturbConfig, generate_synthetic, load_dataset, perturb_dataset
+from liquidgs.data.perturb import NoisyFrame
+from liquidgs.errors import ConfigError
+from liquidgs.experiments import BUILTIN_SPECS, expand, generate_scenes, spec_from_dict
+from liquidgs.experiments.report.significance import paired_difference
+from liquidgs.experiments.report.stress import verdict_sentence
+from liquidgs.train.config import TrainConfig, config_hash, identity, load_yaml, preset_config
+
+FAST = ["--preset", "tiny", "--iterations", "12", "--warmup", "4", "--init-points", "300",
+        "--checkpoint-every", "6", "--eval.start", "12", "--eval.fps-frames", "2"]  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory) -> Path:
+    root = tmp_path_factory.mktemp("scene")
+    generated = generate_synthetic("puppet", root / "gen", size=32, frames=16, seed=5)
+    shutil.move(str(generated / "dnerf"), str(root / "puppet"))
+    return root / "puppet"
+
+
+@pytest.fixture(scope="module")
+def dataset(scene):
+    return load_dataset(DataConfig(path=scene))
+
+
+def many_frames(dataset, copies: int):
+    """The scene's training frames repeated, at mid-range times, for sample statistics."""
+    frames = [f for f in dataset.train for _ in range(copies)]
+    return [type(f)(**{**f.__dict__, "time": 0.5}) for f in frames]
+
+
+def with_train(dataset, frames):
+    import dataclasses
+
+    return dataclasses.replace(dataset, splits={**dataset.splits, "train": frames})
+
+
+# ------------------------------------------------------------------ perturbations
+
+
+def test_time_jitter_has_the_asked_standard_deviation(dataset):
+    big = with_train(dataset, many_frames(dataset, 300))
+    jittered = perturb_dataset(big, PerturbConfig(time_jitter=0.05), seed=1)
+    shifts = np.array([f.time - 0.5 for f in jittered.train])
+    assert len(shifts) > 2000
+    assert abs(shifts.std(ddof=1) - 0.05) < 0.004 and abs(shifts.mean()) < 0.004
+    clipped = perturb_dataset(dataset, PerturbConfig(time_jitter=5.0), seed=1)
+    assert all(0.0 <= f.time <= 1.0 for f in clipped.train)
+
+
+def rotation_angle_deg(a: torch.Tensor, b: torch.Tensor) -> float:
+    relative = (a[:3, :3].double() @ b[:3, :3].double().T).numpy()
+    return math.degrees(math.acos(np.clip((np.trace(relative) - 1.0) / 2.0, -1.0, 1.0)))
+
+
+def test_rotation_angles_follow_the_asked_distribution(dataset):
+    big = with_train(dataset, many_frames(dataset, 200))
+    moved = perturb_dataset(big, PerturbConfig(pose_rot_deg=2.0), seed=4)
+    angles = np.array([rotation_angle_deg(m.viewmat, f.viewmat) for m, f in zip(moved.train, big.train)])
+    # |N(0, R^2)|: RMS R, mean R * sqrt(2 / pi).
+    assert abs(math.sqrt((angles**2).mean()) - 2.0) < 0.1
+    assert abs(angles.mean() - 2.0 * math.sqrt(2 / math.pi)) < 0.1
+    # Rotation about the camera centre: the centre stays put.
+    for m, f in zip(moved.train[:20], big.train[:20]):
+        assert torch.allclose(m.camera_center, f.camera_center, atol=1e-4)
+
+
+def test_translation_has_the_asked_rms_length(dataset):
+    big = with_train(dataset, many_frames(dataset, 200))
+    moved = perturb_dataset(big, PerturbConfig(pose_trans=0.1), seed=2)
+    shifts = torch.stack([m.camera_center - f.camera_center for m, f in zip(moved.train, big.train)]).double()
+    rms = float(shifts.norm(dim=1).pow(2).mean().sqrt())
+    assert abs(rms / (0.1 * big.camera_extent) - 1.0) < 0.05
+
+
+def test_time_split_boundary_is_exactly_t0(dataset):
+    times = sorted({f.time for f in dataset.train + dataset.test})
+    t0 = next(t for t in times if t > 0.5)  # a frame sits exactly on the boundary
+    split = perturb_dataset(dataset, PerturbConfig(time_split=t0), seed=0)
+    assert split.train and split.test
+    assert all(f.time < t0 for f in split.train)
+    assert all(f.time >= t0 for f in split.test)
+    assert len(split.train) == sum(f.time < t0 for f in dataset.train)
+    assert len(split.test) == sum(f.time >= t0 for f in dataset.test)
+
+
+def test_keep_frames_keeps_evenly_spaced_frames(dataset):
+    kept = perturb_dataset(dataset, PerturbConfig(keep_frames=3), seed=0).train
+    times = sorted(f.time for f in dataset.train)
+    middle = round((len(times) - 1) / 2)
+    assert sorted(f.time for f in kept) == [times[0], times[middle], times[-1]]
+    assert perturb_dataset(dataset, PerturbConfig(keep_frames=len(times)), seed=0).train == dataset.train
+    with pytest.raises(ConfigError, match="perturb.keep-frames 999"):
+        perturb_dataset(dataset, PerturbConfig(keep_frames=999), seed=0)
+
+
+def test_image_noise_is_fixed_per_frame_and_has_the_asked_std(dataset):
+    noisy = perturb_dataset(dataset, PerturbConfig(image_noise=0.05), seed=3)
+    frame, clean = noisy.train[0], dataset.train[0]
+    assert isinstance(frame, NoisyFrame)
+    assert torch.equal(frame.image(), frame.image())  # the same corruption on every read
+    residual = (frame.image() - clean.image()).flatten()
+    inside = ((clean.image() > 0.2) & (clean.image() < 0.8)).flatten()  # away from the clip at 0 and 1
+    assert abs(float(residual[inside].std()) - 0.05) < 0.01
+
+
+def test_test_views_are_untouched_and_the_same_seed_gives_the_same_perturbation(dataset):
+    cfg = PerturbConfig(time_jitter=0.02, pose_rot_deg=1.0, pose_trans=0.01, image_noise=0.02)
+    a, b = perturb_dataset(dataset, cfg, seed=7), perturb_dataset(dataset, cfg, seed=7)
+    other = perturb_dataset(dataset, cfg, seed=8)
+    assert a.test == dataset.test and all(type(f) is not NoisyFrame for f in a.test)
+    for fa, fb in zip(a.train, b.train):
+        assert fa.time == fb.time and torch.equal(fa.viewmat, fb.viewmat) and torch.equal(fa.image(), fb.image())
+    assert any(fa.time != fo.time for fa, fo in zip(a.train, other.train))
+    assert perturb_dataset(dataset, PerturbConfig(), seed=7) is dataset
+
+
+@pytest.mark.parametrize(
+    ("flag", "value", "message"),
+    [
+        ("--perturb.time-jitter", "-0.1", "perturb.time-jitter must be a finite number >= 0"),
+        ("--perturb.pose-rot-deg", "nan", "perturb.pose-rot-deg must be a finite number >= 0"),
+        ("--perturb.image-noise", "-1", "perturb.image-noise"),
+        ("--perturb.time-split", "1.0", "perturb.time-split must be a number in (0, 1)"),
+        ("--perturb.time-split", "0", "perturb.time-split must be a number in (0, 1)"),
+        ("--perturb.keep-frames", "0", "perturb.keep-frames must be an integer >= 1"),
+    ],
+)
+def test_bad_perturbations_are_one_line_errors(scene, tmp_path, capsys, flag, value, message):
+    code = cli_main(["train", "--data", str(scene), "--out", str(tmp_path / "r"), *FAST, flag, value])
+    err = capsys.readouterr().err
+    assert code == 2 and message in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "r").exists()
+
+
+def test_an_unperturbed_config_has_no_perturb_identity_and_keeps_its_hash(scene):
+    clean = preset_config("tiny", scene)
+    assert "perturb" not in identity(clean)
+    assert identity(clean)["field_options"]["name"] == "mlp"  # the hashed placeholder of older versions
+    perturbed = preset_config("tiny", scene)
+    perturbed.perturb.time_jitter = 0.01
+    assert identity(perturbed)["perturb"]["time_jitter"] == 0.01
+    assert config_hash(perturbed) != config_hash(clean)
+
+
+def test_a_config_yml_of_an_older_version_still_loads(tmp_path, scene):
+    cfg = preset_config("tiny", scene)
+    raw = yaml.safe_load(yaml.safe_dump(json.loads(json.dumps(identity(cfg)))))
+    del raw["field_options"]["name"]  # identity adds them back; an old file had them, any value
+    raw["field_options"].update(name="cfc", preset="dnerf", lambda_=None)
+    (tmp_path / "config.yml").write_text(yaml.safe_dump(raw))
+    assert config_hash(load_yaml(tmp_path / "config.yml")) == config_hash(cfg)
+
+
+def test_perturbation_is_recorded_and_resume_keeps_it(scene, tmp_path, capsys):
+    out = tmp_path / "run"
+    argv = ["train", "--data", str(scene), "--out", str(out), *FAST, "--perturb.time-jitter", "0.03",
+            "--perturb.time-split", "0.6"]  # fmt: skip
+    assert cli_main(argv) == 0
+    stored = load_yaml(out / "config.yml")
+    assert stored.perturb == PerturbConfig(time_jitter=0.03, time_split=0.6)
+    results = json.loads((out / "results.json").read_text())
+    assert results["perturb"] == {"time_jitter": 0.03, "time_split": 0.6}
+    split = perturb_dataset(load_dataset(DataConfig(path=scene)), stored.perturb, stored.seed)
+    assert results["views"] == {"train": len(split.train), "test": len(split.test)}
+    views = json.loads((out / "per_view.json").read_text())["views"]
+    assert len(views) == len(split.test)
+
+    # Extend it: the stored perturbation comes back; asking for another is refused.
+    assert cli_main(["train", "--out", str(out), "--resume", "--iterations", "14"]) == 0
+    assert load_yaml(out / "config.yml").perturb == stored.perturb
+    assert json.loads((out / "results.json").read_text())["perturb"] == results["perturb"]
+    code = cli_main(["train", "--out", str(out), "--resume", "--iterations", "16", "--perturb.time-jitter", "0.1"])
+    assert code == 2 and "perturb.time_jitter" in capsys.readouterr().err
+
+
+# ------------------------------------------------------------------ noise variants from the command line
+
+
+@pytest.mark.parametrize(
+    "options",
+    [
+        ["--field-options.noise", "ou"],
+        ["--field-options.noise", "solver"],
+        ["--field-options.noise", "ou", "--field-options.ltc-leak", "0.5"],
+        ["--field-options.adaptive-lambda"],
+        ["--field-options.lambda-schedule", "linear", "--field-options.lambda-decay-steps", "10"],
+        ["--field-options.lambda-schedule", "cosine", "--field-options.lambda-decay-steps", "10"],
+    ],
+    ids=["ou", "solver", "ou-leak", "adaptive", "linear", "cosine"],
+)
+def test_every_noise_variant_trains_through_the_cli(scene, tmp_path, options):
+    out = tmp_path / "run"
+    argv = ["train", "--data", str(scene), "--out", str(out), *FAST, "--field", "sde", "--lambda", "0.1", *options]
+    assert cli_main(argv) == 0
+    field = load_yaml(out / "config.yml").field_config()
+    flags = dict(zip(options[::2], options[1::2])) if len(options) > 1 else {}
+    assert field.name == "sde" and field.lambda_ == 0.1
+    if "--field-options.noise" in flags:
+        assert field.noise == flags["--field-options.noise"]
+    if "--field-options.lambda-schedule" in flags:
+        assert field.lambda_schedule == flags["--field-options.lambda-schedule"]
+    if options == ["--field-options.adaptive-lambda"]:
+        assert field.adaptive_lambda
+    assert math.isfinite(json.loads((out / "results.json").read_text())["final"]["psnr"])
+
+
+def test_a_noise_variant_on_a_deterministic_field_is_one_line(scene, tmp_path, capsys):
+    argv = ["train", "--data", str(scene), "--out", str(tmp_path / "r"), "--field", "cfc"]
+    argv += ["--field-options.noise", "ou"]
+    assert cli_main(argv) == 2
+    assert "apply to the 'sde' field only, not to 'cfc'" in capsys.readouterr().err
+
+
+def test_field_options_have_no_name_preset_or_lambda_of_their_own():
+    names = set(TrainConfig.__dataclass_fields__["field_options"].default_factory().__dataclass_fields__)
+    assert not names & {"name", "preset", "lambda_"}
+
+
+# ------------------------------------------------------------------ specs
+
+
+def test_stress_specs_expand_with_named_runs(tmp_path):
+    root = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "dnerf"
+    if not (root / "bouncingballs").is_dir():
+        pytest.skip("no shared D-NeRF data")
+    experiment = expand(BUILTIN_SPECS["stress-mini"], root, tmp_path / "e")
+    assert len(experiment.runs) == sum(g.run_count() for g in BUILTIN_SPECS["stress-mini"].grids) == 64
+    names = {r.name for r in experiment.runs}
+    assert "synthetic-puppet-64px-sde-ou-time-jitter0.1-s1" in names
+    assert "dnerf-bouncingballs-cfc-s0" in names and len(names) == 64
+    assert {r.perturb for r in experiment.runs} == {"", "time_jitter", "time_split"}
+    (scene_spec, folder), = experiment.synthetic_scenes
+    assert scene_spec.size == 64 and folder == (tmp_path / "e" / "scenes" / "puppet-64px").resolve()
+    assert not (tmp_path / "e").exists()  # planning writes nothing
+
+
+def test_a_yaml_stress_spec_runs_variants_and_perturbations_on_a_synthetic_scene(tmp_path):
+    spec = spec_from_dict(
+        {
+            "name": "s",
+            "preset": "tiny",
+            "scenes": ["synthetic:spinner:16"],
+            "variants": {
+                "cfc": {"field": "cfc"},
+                "sde-annealed": {"field": "sde", "lambda": 0.1, "overrides": {
+                    "field_options": {"lambda_schedule": "linear", "lambda_decay_steps": 8}}},
+            },
+            "perturb": {"time-jitter": [0, 0.05], "keep_frames": [0, 4]},
+            "seeds": [0],
+            "overrides": {"iterations": 8, "warmup": 2, "init_points": 200, "eval": {"start": 8, "fps_frames": 1}},
+        },
+        "s.yml",
+    )  # fmt: skip
+    experiment = expand(spec, tmp_path, tmp_path / "e")
+    conditions = ("", "-time-jitter0.05", "-keep-frames4")
+    assert [r.name for r in experiment.runs] == [
+        f"tiny-spinner-16px-{v}{c}-s0" for v in ("cfc", "sde-annealed") for c in conditions
+    ]
+    args = experiment.runs[2].train_args
+    assert args[args.index("--perturb.keep-frames") + 1] == "4"
+    assert generate_scenes(experiment) == [(tmp_path / "e" / "scenes" / "spinner-16px").resolve()]
+    assert generate_scenes(experiment) == []  # once
+    assert (Path(experiment.runs[0].data) / "transforms_train.json").is_file()
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        ({"variants": {"x": {"field": "nerf"}}}, "variants.x.field' names unknown field 'nerf'"),
+        ({"variants": {"x": {"field": "sde", "lam": 1}}}, "unknown key 'lam'"),
+        ({"variants": {"x": {"field": "sde"}}, "fields": ["mlp"]}, "either 'variants' or 'fields'"),
+        ({"perturb": {"blur": [0, 1]}}, "unknown perturbation 'blur'"),
+        ({"perturb": {"time_jitter": [-1]}}, "'perturb.time_jitter' must hold finite numbers >= 0"),
+        ({"perturb": {"keep_frames": [2.5]}}, "'perturb.keep_frames' must hold whole numbers"),
+        ({"scenes": ["synthetic:teapot:32"]}, "synthetic:NAME:SIZE"),
+    ],
+)
+def test_bad_stress_specs_are_one_line_errors(extra, message):
+    raw = {"name": "x", "preset": "tiny", "scenes": ["a"], **({"fields": ["cfc"]} if "variants" not in extra else {})}
+    with pytest.raises(ConfigError, match=message.replace("(", r"\(").replace(")", r"\)")):
+        spec_from_dict({**raw, **extra}, "x.yml")
+
+
+# ------------------------------------------------------------------ significance
+
+
+def test_a_clear_gain_is_significant_and_its_interval_holds_the_truth():
+    rng = np.random.default_rng(0)
+    clusters = [1.0 + rng.normal(0.0, 0.2, 20) for _ in range(3)]
+    d = paired_difference(clusters)
+    assert d.verdict == "helps" and d.low < 1.0 < d.high and d.pairs == 60 and d.clusters == 3
+    assert paired_difference([-c for c in clusters]).verdict == "hurts"
+
+
+def test_no_difference_is_a_tie():
+    # Symmetric differences around 0: the interval straddles 0.
+    d = paired_difference([np.array([-1.0, 1.0, -0.5, 0.5]), np.array([0.3, -0.3, 0.8, -0.8])])
+    assert d.mean == 0.0 and d.low < 0 < d.high and d.verdict == "tie"
+
+
+def test_a_gain_in_one_run_only_is_not_significant():
+    # Views of a run are correlated: one run far ahead and one far behind is no evidence.
+    d = paired_difference([np.full(30, 2.0) + np.linspace(-0.01, 0.01, 30), np.full(30, -1.5)])
+    assert d.verdict == "tie"
+
+
+def test_the_sentence_names_where_noise_helps_hurts_and_ties():
+    from liquidgs.experiments.report.stress import Comparison
+
+    rng = np.random.default_rng(1)
+    help_ = paired_difference([0.5 + rng.normal(0, 0.05, 10) for _ in range(2)])
+    hurt = paired_difference([-0.4 + rng.normal(0, 0.05, 10) for _ in range(2)])
+    tie = paired_difference([np.array([-1.0, 1.0]), np.array([1.0, -1.0])])
+    sentence = verdict_sentence(
+        "time_jitter", [Comparison("sde-ou", 0.1, help_), Comparison("sde-l0.1", 0.0, hurt), Comparison("x", 0.03, tie)]
+    )
+    assert "noise helps: sde-ou at 0.1 (+0.5" in sentence and "it hurts: sde-l0.1 at 0 (-0.4" in sentence
+    assert "1 of 3 comparisons are ties" in sentence
+
+
+def test_the_report_answers_does_noise_help_on_hand_built_runs(tmp_path):
+    from liquidgs.experiments import Experiment, RunEntry, write_manifest
+    from liquidgs.experiments.report import write_report
+    from liquidgs.train.config import save_yaml
+
+    directory, data = tmp_path / "exp", tmp_path / "data"
+    data.mkdir()
+    runs = []
+    for variant, field, lam in (("cfc", "cfc", 0.0), ("sde-ou", "sde", 0.1)):
+        for perturb, strength in (("", 0.0), ("time_jitter", 0.1)):
+            for seed in (0, 1, 2):
+                run_dir = f"dnerf/hook/{variant}/{perturb}{strength}-s{seed}"
+                runs.append(RunEntry("dnerf", "hook", field, lam, seed, "tiny", str(data), run_dir, (), variant,
+                                     perturb, strength))  # fmt: skip
+                cfg = preset_config("tiny", data)
+                cfg.field, cfg.seed, cfg.lambda_ = field, seed, (lam if field == "sde" else None)
+                save_yaml(cfg, directory / run_dir / "config.yml")
+                # sde-ou gains 1 dB on every view under jitter, nothing (+-0.2 per view) when clean
+                gain = 1.0 if (field == "sde" and perturb) else 0.0
+                wobble = [0.2, -0.2, 0.1, -0.1] if field == "sde" else [0.0] * 4
+                views = [{"name": f"v{i}", "psnr": 25.0 + 0.3 * seed - 2 * strength + gain + w}
+                         for i, w in enumerate(wobble)]  # fmt: skip
+                psnr = float(np.mean([v["psnr"] for v in views]))
+                scores = {"psnr": psnr, "ssim": 0.9, "lpips": None}
+                results = {"final": scores, "best_of": scores, "fps": 10.0, "num_gaussians": 100,
+                           "field_parameters": 10, "field_flops_per_gaussian": 10, "train_seconds": 1.0,
+                           "peak_memory_mb": 1.0, "peak_memory_kind": "process_peak_rss", "device": "cpu"}  # fmt: skip
+                (directory / run_dir / "results.json").write_text(json.dumps(results))
+                (directory / run_dir / "per_view.json").write_text(json.dumps({"iteration": 1, "views": views}))
+    write_manifest(Experiment({"name": "stress-hand"}, str(data), directory, tuple(runs)))
+    text = write_report(directory).read_text()
+    assert (directory / "report" / "stress_time_jitter.png").is_file()
+    assert "| sde-ou | 0.1 | +1.000 |" in text and "**helps**" in text
+    assert "| sde-ou | 0 | +0.000 |" in text
+    assert "time jitter: noise helps: sde-ou at 0.1 (+1.00 dB); it hurts nowhere; 1 of 2 comparisons are ties" in text
+    assert "| 12 (3 runs) |" in text
