@@ -238,13 +238,13 @@ def test_field_options_have_no_name_preset_or_lambda_of_their_own():
 
 def test_stress_specs_expand_with_named_runs(tmp_path):
     root = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "dnerf"
-    if not (root / "bouncingballs").is_dir():
+    if not (root / "hellwarrior").is_dir():
         pytest.skip("no shared D-NeRF data")
     experiment = expand(BUILTIN_SPECS["stress-mini"], root, tmp_path / "e")
     assert len(experiment.runs) == sum(g.run_count() for g in BUILTIN_SPECS["stress-mini"].grids) == 64
     names = {r.name for r in experiment.runs}
     assert "synthetic-puppet-64px-sde-ou-time-jitter0.1-s1" in names
-    assert "dnerf-bouncingballs-cfc-s0" in names and len(names) == 64
+    assert "dnerf-hellwarrior-cfc-s0" in names and len(names) == 64
     assert {r.perturb for r in experiment.runs} == {"", "time_jitter", "time_split"}
     (scene_spec, folder), = experiment.synthetic_scenes
     assert scene_spec.size == 64 and folder == (tmp_path / "e" / "scenes" / "puppet-64px").resolve()
