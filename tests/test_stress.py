@@ -105,7 +105,9 @@ def test_keep_frames_keeps_evenly_spaced_frames(dataset):
     times = sorted(f.time for f in dataset.train)
     middle = round((len(times) - 1) / 2)
     assert sorted(f.time for f in kept) == [times[0], times[middle], times[-1]]
-    assert perturb_dataset(dataset, PerturbConfig(keep_frames=len(times)), seed=0).train == dataset.train
+    every = perturb_dataset(dataset, PerturbConfig(keep_frames=len(times)), seed=0).train
+    assert [(f.name, f.time, f.image_path) for f in every] == [(f.name, f.time, f.image_path) for f in dataset.train]
+    assert all(torch.equal(a.viewmat, b.viewmat) for a, b in zip(every, dataset.train))
     with pytest.raises(ConfigError, match="perturb.keep-frames 999"):
         perturb_dataset(dataset, PerturbConfig(keep_frames=999), seed=0)
 
