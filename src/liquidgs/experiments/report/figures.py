@@ -24,6 +24,17 @@ CROP_FRACTION = 0.5
 """The crop window's side as a fraction of the image's shorter side."""
 
 
+def save_plot(fig, path: Path) -> Path:
+    """A matplotlib figure as a PNG, written atomically; the figure is closed either way."""
+    import matplotlib.pyplot as plt
+
+    fig.tight_layout()
+    try:
+        return write_atomic(path, lambda tmp: fig.savefig(tmp, format="png", dpi=120))
+    finally:
+        plt.close(fig)
+
+
 def noise_plot(path: Path, curves: dict[str, list[tuple[float, float, float | None]]]) -> Path:
     """One panel per dataset: mean PSNR per lambda, with the seed spread (std) as error bars."""
     import matplotlib
@@ -40,11 +51,7 @@ def noise_plot(path: Path, curves: dict[str, list[tuple[float, float, float | No
         ax.set_xlabel("lambda (gate-noise level)")
         ax.set_ylabel("PSNR (dB)")
         ax.grid(alpha=0.3)
-    fig.tight_layout()
-    try:
-        return write_atomic(path, lambda tmp: fig.savefig(tmp, format="png", dpi=120))
-    finally:
-        plt.close(fig)
+    return save_plot(fig, path)
 
 
 @dataclass(frozen=True)

@@ -14,9 +14,9 @@ from pathlib import Path
 
 import numpy as np
 
-from liquidgs.atomic import write_atomic
 from liquidgs.experiments.plan import RunEntry
 from liquidgs.experiments.report.collect import Collection, RunRecord
+from liquidgs.experiments.report.figures import save_plot
 from liquidgs.experiments.report.significance import (
     CONFIDENCE,
     PairedDifference,
@@ -143,11 +143,7 @@ def strength_plot(path: Path, perturb: str, curves: dict[str, list[tuple[float, 
     ax.set_ylabel("test PSNR (dB)")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7)
-    fig.tight_layout()
-    try:
-        return write_atomic(path, lambda tmp: fig.savefig(tmp, format="png", dpi=120))
-    finally:
-        plt.close(fig)
+    return save_plot(fig, path)
 
 
 def stress_section(collection: Collection, evaluation: str, out_dir: Path, md: list[str]) -> None:
