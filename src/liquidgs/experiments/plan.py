@@ -78,7 +78,7 @@ class Experiment:
 
 def flag(key: str) -> str:
     """An override key ('eval.every', 'field_options.noise') as the `liquidgs train` flag."""
-    return "--" + key.replace("_", "-") if key != "lambda" else "--lambda"
+    return "--" + key.replace("_", "-")
 
 
 def override_args(overrides: dict) -> list[str]:
