@@ -22,7 +22,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "render": ("liquidgs.commands.render", "test renders, depth, time sweep, orbit video"),
     "export": ("liquidgs.commands.export", "canonical PLY, PLY at a time, PLY sequence"),
     "data": ("liquidgs.commands.data", "generate synthetic scenes, validate dataset folders"),
-    "bench": ("liquidgs.commands.bench", "benchmarks that print JSON (raster, fields)"),
+    "bench": ("liquidgs.commands.bench", "benchmarks that print JSON (raster, fields, train)"),
     "experiment": ("liquidgs.commands.experiment", "grids of runs (local or Ray) and the paper's tables"),
 }
 
