@@ -28,7 +28,7 @@ from liquidgs.render.tiles import TileBins, tile_boxes
 SOURCE = Path(__file__).with_name("cpu_composite.cpp")
 FLAGS = ("-O3", "-march=native", "-std=c++17", "-shared", "-fPIC", "-fopenmp")
 DISABLE_VARIABLE = "LIQUIDGS_CPU_KERNEL"
-# Gradient row per (tile, Gaussian) pair: means2d (2), conics (3), opacity (1), RGB + depth (4), |means2d| (2).
+# Gradient row per Gaussian: means2d (2), conics (3), opacity (1), RGB + depth (4), |means2d| (2).
 ROW = 12
 FEATURES = 4
 MAX_TILE_SIZE = 32
@@ -37,7 +37,7 @@ _POINTER = ctypes.c_void_p
 _INT = ctypes.c_int
 _INT64 = ctypes.c_int64
 _FORWARD_ARGS = [_POINTER] * 8 + [_INT64, _INT, _INT, _INT, _INT] + [_POINTER] * 3 + [_INT]
-_BACKWARD_ARGS = [_POINTER] * 8 + [_INT64, _INT, _INT, _INT, _INT] + [_POINTER] * 5 + [_INT]
+_BACKWARD_ARGS = [_POINTER] * 8 + [_INT64, _INT, _INT, _INT, _INT] + [_POINTER] * 4 + [_INT64, _POINTER, _INT]
 
 
 class KernelUnavailable(RuntimeError):
@@ -162,14 +162,15 @@ class _CompositeCPU(torch.autograd.Function):
         dtype = features.dtype
         grad_features_image = grad_features_image.to(dtype).contiguous()
         grad_alpha_image = grad_alpha_image.to(dtype).reshape(height, width).contiguous()
-        pair_grads = features.new_zeros(bins.n_pairs, ROW)
+        threads = torch.get_num_threads()
+        thread_grads = features.new_zeros(threads, means2d.shape[0], ROW)
         inputs = [t.detach().contiguous() for t in (means2d, conics, opacities, features)]
         common = _common_arguments(*inputs, bins, tile_order, width, height)
         getattr(_library(), f"liquidgs_composite_backward_{_suffix(dtype)}")(
             *common, _pointer(transmittance), _pointer(last), _pointer(grad_features_image),
-            _pointer(grad_alpha_image), _pointer(pair_grads), torch.get_num_threads(),
+            _pointer(grad_alpha_image), means2d.shape[0], _pointer(thread_grads), threads,
         )  # fmt: skip
-        per_gaussian = pair_grads.new_zeros(means2d.shape[0], ROW).index_add_(0, bins.gaussian_ids, pair_grads)
+        per_gaussian = thread_grads.sum(dim=0)
         if ctx.absgrad:
             # gsplat's convention: the summed per-pixel |dL/dmeans2d| lands on means2d.absgrad.
             means2d.absgrad = per_gaussian[:, 10:12].clone()

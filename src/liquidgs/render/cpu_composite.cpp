@@ -6,8 +6,8 @@
 // time in GCC/Clang vector types: every pixel keeps its own transmittance and stops on its own,
 // and the tile stops when all of its pixels have. The backward walks each tile's Gaussians back
 // to front from the final transmittance, dividing alpha back out (as gsplat's kernel does), and
-// writes one gradient row per (tile, Gaussian) pair; the caller sums the rows per Gaussian, so
-// the result does not depend on the number of threads.
+// adds each Gaussian's gradients into its thread's own row, summed by the caller; tiles go to
+// threads in a fixed order, so a run repeats bit for bit with the same number of threads.
 //
 // Built on first use by liquidgs/render/cpu_backend.py and called through ctypes: plain C
 // types only, no torch headers, so it compiles in about a second with g++ or clang++.
@@ -24,7 +24,7 @@ namespace {
 constexpr int kMaxTileSize = 32;
 // RGB and depth: the features rasterize() composites.
 constexpr int kFeatures = 4;
-// Gradient row per pair: means2d (2), conics (3), opacity (1), features (4), |means2d| (2).
+// Gradient row per Gaussian: means2d (2), conics (3), opacity (1), features (4), |means2d| (2).
 constexpr int kRow = 12;
 
 // 32-byte vectors of pixels and the integer masks their comparisons give.
@@ -85,6 +85,14 @@ template <typename P> typename P::S lane_sum(typename P::V v) {
     typename P::S sum = 0;
     for (int lane = 0; lane < P::lanes; ++lane) sum += v[lane];
     return sum;
+}
+
+int thread_index() {
+#ifdef _OPENMP
+    return omp_get_thread_num();
+#else
+    return 0;
+#endif
 }
 
 struct TileGeometry {
@@ -180,17 +188,20 @@ void backward(const typename P::S* means2d, const typename P::S* conics, const t
               const typename P::S* features, const int64_t* gaussian_ids, const int64_t* tile_starts,
               const int64_t* tile_counts, const int64_t* tile_order, int64_t n_tiles, TileGeometry g,
               const typename P::S* transmittance, const int32_t* last_index, const typename P::S* grad_features,
-              const typename P::S* grad_alpha, typename P::S* pair_grads) {
+              const typename P::S* grad_alpha, int64_t n_gaussians, typename P::S* thread_grads) {
     using S = typename P::S;
     using V = typename P::V;
     using M = typename P::M;
     using L = Limits<P>;
     constexpr int kMaxVectors = kMaxTileSize * kMaxTileSize / P::lanes;
     (void)tile_counts;
-#pragma omp parallel for schedule(dynamic, 1)
+    // Round-robin over the tiles (busiest first): a fixed tile-to-thread assignment, so each
+    // thread's sums, and their total, come out the same on every run with the same threads.
+#pragma omp parallel for schedule(static, 1)
     for (int64_t i = 0; i < n_tiles; ++i) {
         const int64_t tile = tile_order[i];
         const int vectors = g.pixels() / P::lanes;
+        S* grads = thread_grads + static_cast<int64_t>(thread_index()) * n_gaussians * kRow;
         V px[kMaxVectors], py[kMaxVectors], T[kMaxVectors], T_final[kMaxVectors], behind[kMaxVectors];
         V g_alpha[kMaxVectors], g_out[kFeatures][kMaxVectors];
         M last[kMaxVectors], inside[kMaxVectors];
@@ -209,7 +220,8 @@ void backward(const typename P::S* means2d, const typename P::S* conics, const t
         }
         const int64_t start = tile_starts[tile];
         for (int64_t k = deepest; k >= 0; --k) {
-            const Gaussian2D<P> gs(means2d, conics, opacities, features, gaussian_ids[start + k]);
+            const int64_t id = gaussian_ids[start + k];
+            const Gaussian2D<P> gs(means2d, conics, opacities, features, id);
             V gx{}, gy{}, abs_gx{}, abs_gy{}, g_ca{}, g_cb{}, g_cc{}, g_opacity{}, g_feature[kFeatures] = {};
             for (int j = 0; j < vectors; ++j) {
                 const V dx = gs.mx - px[j], dy = gs.my - py[j];
@@ -242,16 +254,16 @@ void backward(const typename P::S* means2d, const typename P::S* conics, const t
                 behind[j] += weight * feature_dot;
                 T[j] = T_before;
             }
-            S* out = pair_grads + (start + k) * kRow;
-            out[0] = lane_sum<P>(gx);
-            out[1] = lane_sum<P>(gy);
-            out[2] = lane_sum<P>(g_ca);
-            out[3] = lane_sum<P>(g_cb);
-            out[4] = lane_sum<P>(g_cc);
-            out[5] = lane_sum<P>(g_opacity);
-            for (int f = 0; f < kFeatures; ++f) out[6 + f] = lane_sum<P>(g_feature[f]);
-            out[10] = lane_sum<P>(abs_gx);
-            out[11] = lane_sum<P>(abs_gy);
+            S* out = grads + id * kRow;
+            out[0] += lane_sum<P>(gx);
+            out[1] += lane_sum<P>(gy);
+            out[2] += lane_sum<P>(g_ca);
+            out[3] += lane_sum<P>(g_cb);
+            out[4] += lane_sum<P>(g_cc);
+            out[5] += lane_sum<P>(g_opacity);
+            for (int f = 0; f < kFeatures; ++f) out[6 + f] += lane_sum<P>(g_feature[f]);
+            out[10] += lane_sum<P>(abs_gx);
+            out[11] += lane_sum<P>(abs_gy);
         }
     }
 }
@@ -314,11 +326,11 @@ void liquidgs_bin_tiles(const int64_t* depth_order, const int64_t* tile_box, int
         const int64_t* gaussian_ids, const int64_t* tile_starts, const int64_t* tile_counts,                      \
         const int64_t* tile_order, int64_t n_tiles, int tile_size, int tiles_x, int width, int height,           \
         const P::S* transmittance, const int32_t* last_index, const P::S* grad_features, const P::S* grad_alpha, \
-        P::S* pair_grads, int threads) {                                                                            \
+        int64_t n_gaussians, P::S* thread_grads, int threads) {                                                                            \
         set_threads(threads);                                                                                       \
         backward<P>(means2d, conics, opacities, features, gaussian_ids, tile_starts, tile_counts, tile_order,      \
                     n_tiles, TileGeometry{tile_size, tiles_x, width, height}, transmittance, last_index,           \
-                    grad_features, grad_alpha, pair_grads);                                                         \
+                    grad_features, grad_alpha, n_gaussians, thread_grads);                                                         \
     }
 
 LIQUIDGS_EXPORT(F32, f32)
