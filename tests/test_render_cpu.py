@@ -8,11 +8,11 @@ import sys
 
 import pytest
 import torch
-from test_render import PARAMETERS, gradients, random_scene, render
 
 from liquidgs.render import cpu_backend
 from liquidgs.render.projection import project_gaussians
 from liquidgs.render.tiles import bin_gaussians
+from test_render import PARAMETERS, gradients, random_scene, render
 
 pytestmark = pytest.mark.skipif(
     cpu_backend.unavailable_reason() is not None,

@@ -382,6 +382,27 @@ def _write_json(path: Path, data: object) -> None:
     path.write_text(json.dumps(data, indent=2) + "\n")
 
 
+MOVING_THRESHOLD = 0.1
+"""A pixel moves when some channel (or coverage) changes by more than this between neighbouring frames."""
+
+
+def moving_mask(
+    name: str, K: np.ndarray, cam_to_world: np.ndarray, width: int, height: int, time: float, step: float
+) -> np.ndarray:
+    """bool [H,W]: pixels of this view whose ground truth changes between time - step and time + step.
+
+    The scene is rendered again from the same camera at the neighbouring frame times (clamped
+    to [0, 1]), so the mask is where the motion is, not where the camera moved.
+    """
+    frames = []
+    for t in (max(time - step, 0.0), time, min(time + step, 1.0)):
+        rgba = render_rgba(scene_primitives(name, t), K, cam_to_world, width, height).astype(np.float32) / 255.0
+        frames.append(np.concatenate([rgba[..., :3] * rgba[..., 3:], rgba[..., 3:]], axis=-1))
+    before, now, after = frames
+    changed = np.maximum(np.abs(now - before), np.abs(now - after)).max(axis=-1)
+    return changed > MOVING_THRESHOLD
+
+
 def generate_synthetic(
     name: str, out_dir: str | Path, size: int = 128, frames: int = 80, seed: int = 0, supersample: int = 2
 ) -> Path:

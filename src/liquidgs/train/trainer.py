@@ -116,12 +116,11 @@ class Trainer:
         self.params = self._initial_gaussians().to(self.device)
         self.field = build_field(cfg.field_config()).to(self.device)
         self.optimizers = {
-            key: torch.optim.Adam([self.params[key]], lr=self._static_lr(key), eps=cfg.optim.adam_eps)
-            for key in PARAM_KEYS
+            key: self._adam([self.params[key]], self._static_lr(key)) for key in PARAM_KEYS
         }
         field_params = list(self.field.parameters())
         self.field_optimizer = (
-            torch.optim.Adam(field_params, lr=cfg.optim.field_lr_init, eps=cfg.optim.adam_eps) if field_params else None
+            self._adam(field_params, cfg.optim.field_lr_init) if field_params else None
         )
         self.notes: list[str] = []
         """Things the user should know about this run (printed by the train command)."""
@@ -159,6 +158,10 @@ class Trainer:
             f"densification uses {fallback:.4f}, 1.1 x the largest distance of an initial point from their mean"
         )
         return fallback
+
+    def _adam(self, params: list[torch.nn.Parameter], lr: float) -> torch.optim.Adam:
+        # fused: one kernel per step instead of about ten small ops (the same update rule).
+        return torch.optim.Adam(params, lr=lr, eps=self.cfg.optim.adam_eps, fused=True)
 
     def _static_lr(self, key: str) -> float:
         o = self.cfg.optim
@@ -470,7 +473,7 @@ class Trainer:
         params = payload["params"]
         self.params = torch.nn.ParameterDict({k: torch.nn.Parameter(params[k].to(self.device)) for k in PARAM_KEYS})
         for key in PARAM_KEYS:
-            optimizer = torch.optim.Adam([self.params[key]], lr=self._static_lr(key), eps=self.cfg.optim.adam_eps)
+            optimizer = self._adam([self.params[key]], self._static_lr(key))
             optimizer.load_state_dict(payload["optimizers"][key])
             self.optimizers[key] = optimizer
         self.field.load_state_dict(payload["field"])
