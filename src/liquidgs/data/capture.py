@@ -34,10 +34,13 @@ from liquidgs.data.video import ExtractedFrame, collect_image_frames, crop_to_mu
 from liquidgs.errors import ConfigError, DataError
 
 CAPTURE_FILE = "capture.json"  # how the scene was made: source, registered and dropped frames, errors
+# COLMAP's model the cameras come from (every keypoint, track and camera), for COLMAP's own tools.
+SPARSE_FOLDER = "colmap/sparse"
 SCALES = (1, 2, 4)  # rgb/<k>x folders written
-# scene.json: the scale maps this quantile of the points' distances from their median to 1, so
-# that a few far-away points (sky, distant walls) do not shrink the scene.
-EXTENT_QUANTILE = 0.9
+# scene.json's scale puts the median depth of what the cameras see at this distance: the D-NeRF
+# cameras' distance from their object, the scale the training presets are tuned for (the fields'
+# deformation and the means' learning rate are in absolute units).
+VIEWING_DISTANCE = 4.0
 
 
 @dataclass
@@ -125,6 +128,16 @@ def _build(source: Path, scene: Path, settings: CaptureSettings, log: Log, *, vi
     summary.source = str(source)
     summary.seconds = {stage: round(value, 2) for stage, value in seconds.items()}
     return summary
+
+
+def _median_depth(model) -> float:
+    """The median depth of every observed point in the camera that observes it."""
+    depths = []
+    for point in model.points3D.values():
+        for element in point.track.elements:
+            pose = model.images[element.image_id].cam_from_world()
+            depths.append(float((pose.rotation.matrix() @ point.xyz + pose.translation)[2]))
+    return float(np.median(depths))
 
 
 def _colmap_masks(user_dir: Path, frames: list[ExtractedFrame], mask_dir: Path, log: Log) -> None:
@@ -217,9 +230,11 @@ def _write_scene(
     xyz = np.array([point.xyz for point in model.points3D.values()], dtype=np.float64).reshape(-1, 3)
     colors = np.array([point.color for point in model.points3D.values()], dtype=np.float64).reshape(-1, 3)
     center = np.median(xyz, axis=0)
-    extent = float(np.quantile(np.linalg.norm(xyz - center, axis=1), EXTENT_QUANTILE))
-    write_json_atomic(scene / SCENE_FILE, {"center": center.tolist(), "scale": 1.0 / max(extent, 1e-9)})
+    scale = VIEWING_DISTANCE / max(_median_depth(model), 1e-9)
+    write_json_atomic(scene / SCENE_FILE, {"center": center.tolist(), "scale": scale})
     np.save(scene / POINTS_FILE, np.concatenate([xyz, colors / 255.0], axis=1).astype(np.float32))
+    (scene / SPARSE_FOLDER).mkdir(parents=True)
+    model.write(scene / SPARSE_FOLDER)
 
     first = model.cameras[by_name[f"{registered[0].id}.png"].camera_id]
     error = float(model.compute_mean_reprojection_error())
