@@ -1,7 +1,8 @@
 """A handheld video of a dynamic scene with known cameras, for the own-video pipeline tests.
 
-The built-in ray caster renders the `puppet` figure (the moving object) in front of a static
-wall and floor with a non-repeating speckle texture (COLMAP needs texture it can tell apart).
+The built-in ray caster renders a checkered ball (the moving object) that rolls across the view
+and back while it bounces, in front of a static wall and floor with a non-repeating speckle
+texture (COLMAP needs texture it can tell apart).
 The camera drifts sideways along a smooth arc with handheld-like bob, sway and roll, always
 roughly facing the figure. Everything is deterministic.
 """
@@ -14,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from liquidgs.data.synthetic import Primitive, render_rgba, scene_primitives
+from liquidgs.data.synthetic import Primitive, render_rgba
 from liquidgs.media import write_video
 
 WIDTH, HEIGHT = 200, 152
@@ -26,7 +27,16 @@ BACKGROUND = [
     Primitive("floor", "box", (9.0, 3.5, 0.2), ((0.3, 0.2, 0.1), (0.9, 0.95, 0.7)), "speckle", 0.13,
               np.eye(3), np.array([0.0, 0.0, -1.35])),
 ]  # fmt: skip
-MOVING = 7  # the puppet's primitives come first; the rest is background
+
+
+def moving_ball(time: float) -> Primitive:
+    """Across and back (x from -1.2 to 1.2 and back), two bounces, rolling as it goes."""
+    x = -1.2 + 2.4 * (1.0 - abs(1.0 - 2.0 * time))
+    z = -0.7 + 0.6 * abs(math.sin(2.0 * math.pi * time))
+    cos, sin = math.cos(x / 0.45), math.sin(x / 0.45)  # rolling: turned by distance / radius about y
+    rotation = np.array([[cos, 0.0, sin], [0.0, 1.0, 0.0], [-sin, 0.0, cos]])
+    return Primitive("ball", "sphere", (0.45,), ((0.95, 0.85, 0.1), (0.1, 0.1, 0.5)), "checker", 0.14,
+                     rotation, np.array([x, 0.0, z]))  # fmt: skip
 
 
 @dataclass
@@ -34,7 +44,7 @@ class HandheldVideo:
     path: Path
     images: list[np.ndarray]  # the frames as rendered, uint8 [H, W, 3], before video compression
     cam_to_world: np.ndarray  # [frames, 4, 4], OpenCV axes
-    dynamic_masks: list[np.ndarray]  # per frame: True where the moving figure covers the pixel
+    dynamic_masks: list[np.ndarray]  # per frame: True where the moving ball covers the pixel
     K: np.ndarray
 
 
@@ -65,9 +75,8 @@ def render_handheld_video(path: Path, frames: int) -> HandheldVideo:
     poses = camera_path(frames)
     images, masks = [], []
     for index, pose in enumerate(poses):
-        prims = scene_primitives("puppet", index / (frames - 1)) + BACKGROUND
-        images.append(render_rgba(prims, K, pose, WIDTH, HEIGHT, supersample=2)[..., :3])
-        figure_only = render_rgba(prims[:MOVING], K, pose, WIDTH, HEIGHT, supersample=1)
-        masks.append(figure_only[..., 3] > 0)
+        ball = moving_ball(index / (frames - 1))
+        images.append(render_rgba([ball, *BACKGROUND], K, pose, WIDTH, HEIGHT, supersample=2)[..., :3])
+        masks.append(render_rgba([ball], K, pose, WIDTH, HEIGHT, supersample=1)[..., 3] > 0)
     write_video(path, images, fps=FPS)
     return HandheldVideo(path=path, images=images, cam_to_world=poses, dynamic_masks=masks, K=K)
