@@ -11,6 +11,7 @@ from __future__ import annotations
 import contextlib
 import io
 import json
+import subprocess
 import sys
 from pathlib import Path
 
@@ -21,6 +22,7 @@ from PIL import Image
 
 from liquidgs.cli import main as cli
 from liquidgs.data import DataConfig, check_dataset, load_dataset
+from liquidgs.data.video import extract_video_frames
 from liquidgs.media import write_video
 from video_scene import FOCAL, render_handheld_video
 
@@ -187,6 +189,31 @@ def test_mask_dynamic_keeps_every_feature_off_the_moving_figure(image_scene, vid
     assert "masks: 20 frames" in stdout
     assert keypoints_on_figure(video_scene[0], handheld, int) >= 100  # unmasked: many
     assert keypoints_on_figure(out, handheld, lambda image_id: sources[int(image_id)]) == 0
+
+
+def test_extraction_samples_frames_and_applies_a_phone_rotation(handheld, tmp_path):
+    import imageio_ffmpeg
+
+    rotated = tmp_path / "portrait.mp4"  # the same stream, with a phone's "display rotation" tag
+    subprocess.run(
+        [imageio_ffmpeg.get_ffmpeg_exe(), "-loglevel", "error", "-display_rotation", "90", "-i", str(handheld.path),
+         "-c", "copy", str(rotated)], check=True,
+    )  # fmt: skip
+    lines: list[str] = []
+    for name, video, fps, frames, ids, size in (
+        ("evenly", handheld.path, None, 5, [0, 8, 16, 23, 31], (200, 152)),
+        ("fps", handheld.path, 3.0, None, list(range(0, FRAMES, 4)), (100, 76)),  # 12 fps video
+        ("portrait", rotated, None, 5, [0, 8, 16, 23, 31], (152, 200)),
+    ):
+        folder = tmp_path / name
+        folder.mkdir()
+        kept = extract_video_frames(video, folder, fps=fps, frames=frames, max_size=max(size), log=lines.append)
+        assert [frame.time_id for frame in kept] == ids and [frame.id for frame in kept] == [f"{n:06d}" for n in ids]
+        assert Image.open(folder / "000000.png").size == size
+    upright = np.asarray(Image.open(tmp_path / "evenly" / "000008.png"), dtype=float)
+    portrait = np.asarray(Image.open(tmp_path / "portrait" / "000008.png"), dtype=float)
+    assert np.abs(portrait - np.rot90(upright)).mean() < 1.0  # same pixels, turned a quarter
+    assert "extraction: portrait.mp4: 32 frames, 12 fps, 152x200 after scaling; keeping 5" in lines
 
 
 def test_bad_inputs_are_one_line_and_leave_nothing(tmp_path):

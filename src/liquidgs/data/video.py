@@ -7,6 +7,7 @@ Nerfies layout's rgb/2x and rgb/4x images are exact area averages of rgb/1x.
 
 from __future__ import annotations
 
+import logging
 import math
 import re
 from collections.abc import Callable
@@ -86,6 +87,9 @@ def extract_video_frames(
     # Fit inside max_size x max_size, aspect kept; 'area' averages pixels when shrinking.
     scale = f"scale='min({max_size},iw)':'min({max_size},ih)':force_original_aspect_ratio=decrease:flags=area"
     reader = imageio_ffmpeg.read_frames(str(video), output_params=["-vf", scale])
+    ffmpeg_logger = logging.getLogger("imageio_ffmpeg")
+    level = ffmpeg_logger.level
+    ffmpeg_logger.setLevel(logging.ERROR)  # it warns that scaled frames differ from the source size
     try:
         meta = next(reader)
         width, height = meta["size"]
@@ -118,6 +122,7 @@ def extract_video_frames(
         raise DataError(video, f"ffmpeg cannot decode it ({' '.join(str(err).split())[:200]})") from None
     finally:
         reader.close()
+        ffmpeg_logger.setLevel(level)
     if not extracted:
         raise DataError(video, "ffmpeg decoded no frames from it")
     log(f"extraction: {len(extracted)} frames saved")
