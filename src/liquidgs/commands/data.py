@@ -180,4 +180,3 @@ def main(argv: list[str]) -> int:
         raise ConfigError(f"choose a subcommand: synth, check, video or images ({usage})")
     spec, run = SUBCOMMANDS[argv[0]]
     return run(parse_args(spec, argv[1:], prog=f"liquidgs data {argv[0]}", description=spec.__doc__))
-

@@ -8,8 +8,8 @@ like a scene.
 from __future__ import annotations
 
 import os
+import secrets
 import shutil
-import tempfile
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -78,8 +78,11 @@ def capture_scene(source: Path, out: Path, settings: CaptureSettings, log: Log, 
         raise ConfigError(f"--out {out}: already exists and is not an empty folder; choose a new folder")
     if settings.holdout_every < 2:
         raise ConfigError(f"--holdout-every must be at least 2, got {settings.holdout_every}")
+    if settings.mask_dir is not None and not settings.mask_dir.is_dir():
+        raise DataError(settings.mask_dir, "--mask-dynamic: mask folder not found")
     out.parent.mkdir(parents=True, exist_ok=True)
-    building = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-", dir=out.parent))
+    building = out.parent / f".{out.name}.partial-{secrets.token_hex(4)}"
+    building.mkdir()  # not mkdtemp: its 0700 would stay on the scene folder
     try:
         summary = _build(source, building, settings, log, video=video)
         summary.out = str(out)
@@ -132,18 +135,19 @@ def _build(source: Path, scene: Path, settings: CaptureSettings, log: Log, *, vi
 
 def _median_depth(model) -> float:
     """The median depth of every observed point in the camera that observes it."""
-    depths = []
-    for point in model.points3D.values():
-        for element in point.track.elements:
-            pose = model.images[element.image_id].cam_from_world()
-            depths.append(float((pose.rotation.matrix() @ point.xyz + pose.translation)[2]))
+    poses = {image_id: image.cam_from_world() for image_id, image in model.images.items() if image.has_pose}
+    # Depth = row 3 of the world->camera transform applied to the point.
+    depth_rows = {i: np.append(pose.rotation.matrix()[2], pose.translation[2]) for i, pose in poses.items()}
+    depths = [
+        float(depth_rows[element.image_id] @ np.append(point.xyz, 1.0))
+        for point in model.points3D.values()
+        for element in point.track.elements
+    ]
     return float(np.median(depths))
 
 
 def _colmap_masks(user_dir: Path, frames: list[ExtractedFrame], mask_dir: Path, log: Log) -> None:
     """User masks (nonzero = moving) -> COLMAP masks (<image name>.png, zero = no features)."""
-    if not user_dir.is_dir():
-        raise DataError(user_dir, "--mask-dynamic: mask folder not found")
     mask_dir.mkdir()
     dynamic_share = []
     for frame in frames:
@@ -209,7 +213,8 @@ def _write_scene(
     ids = [frame.id for frame in registered]
     held_out = settings.holdout_every // 2
     test_ids = [image_id for n, image_id in enumerate(ids) if n % settings.holdout_every == held_out]
-    train_ids = [image_id for image_id in ids if image_id not in set(test_ids)]
+    held_out_ids = set(test_ids)
+    train_ids = [image_id for image_id in ids if image_id not in held_out_ids]
     if not test_ids:
         raise ConfigError(
             f"--holdout-every {settings.holdout_every} holds out none of the {len(ids)} registered frames; "

@@ -47,10 +47,6 @@ def crop_to_multiple(image: np.ndarray) -> np.ndarray:
     return image[: height - height % SIDE_MULTIPLE, : width - width % SIDE_MULTIPLE]
 
 
-def _save(image: np.ndarray, path: Path) -> None:
-    Image.fromarray(crop_to_multiple(image)).save(path, format="PNG")
-
-
 def select_every(native_fps: float, fps: float, count: int) -> list[int]:
     """Frame numbers that sample a `native_fps` stream of `count` frames at `fps`: the first
     frame of each 1/fps interval."""
@@ -114,7 +110,7 @@ def extract_video_frames(
                 mask_name=f"{number:06d}.png",
                 scaled_size=(width, height),
             )
-            _save(image, out_dir / f"{frame.id}.png")
+            Image.fromarray(crop_to_multiple(image)).save(out_dir / f"{frame.id}.png", format="PNG")
             extracted.append(frame)
             if len(extracted) % 25 == 0:
                 log(f"extraction: {len(extracted)}/{len(wanted)} frames")
@@ -152,6 +148,7 @@ def collect_image_frames(folder: Path, out_dir: Path, *, max_size: int, log: Log
     log(f"images: {len(files)} in {folder} (name order is time order)")
     extracted: list[ExtractedFrame] = []
     first_size: tuple[int, int] | None = None
+    saved = np.zeros((0, 0))
     for position, path in enumerate(files):
         try:
             with Image.open(path) as handle:
@@ -177,9 +174,10 @@ def collect_image_frames(folder: Path, out_dir: Path, *, max_size: int, log: Log
             mask_name=f"{path.stem}.png",
             scaled_size=image.size,
         )
-        _save(np.asarray(image), out_dir / f"{frame.id}.png")
+        saved = crop_to_multiple(np.asarray(image))
+        Image.fromarray(saved).save(out_dir / f"{frame.id}.png", format="PNG")
         extracted.append(frame)
-    log(f"images: {len(extracted)} frames saved at {image.size[0]}x{image.size[1]}")
+    log(f"images: {len(extracted)} frames saved at {saved.shape[1]}x{saved.shape[0]}")
     return extracted
 
 
