@@ -271,3 +271,24 @@ def test_a_short_training_on_the_scene_beats_the_static_model(video_scene, tmp_p
         psnr[field] = json.loads((tmp_path / field / "results.json").read_text())["final"]["psnr"]
     print("final test PSNR:", psnr)
     assert psnr["mlp"] >= psnr["static"] + 0.2, psnr
+
+
+def test_bad_image_folders_and_masks_are_one_line_naming_the_file(handheld, tmp_path):
+    images = tmp_path / "images"
+    images.mkdir()
+    for n in range(3):
+        Image.fromarray(handheld.images[n]).save(images / f"{n}.png")
+    masks = tmp_path / "masks"
+    masks.mkdir()
+    Image.fromarray(handheld.dynamic_masks[0].astype(np.uint8) * 255).save(masks / "0.png")
+    out = str(tmp_path / "o")
+    code, _, stderr = run_cli(["data", "images", str(images), "--out", out, "--mask-dynamic", str(masks)])
+    assert code == 2 and f"{masks / '1.png'}: --mask-dynamic: no mask for 1.png" in stderr, stderr
+
+    (images / "3.png").write_bytes(b"\x89PNG\r\n\x1a\n truncated")
+    code, _, stderr = run_cli(["data", "images", str(images), "--out", out])
+    assert code == 2 and f"{images / '3.png'}: cannot decode image" in stderr and stderr.count("\n") == 1
+    Image.new("RGB", (64, 48)).save(images / "3.png")
+    code, _, stderr = run_cli(["data", "images", str(images), "--out", out])
+    assert code == 2 and "is 64x48 but 0.png is 200x152; one shared camera needs one image size" in stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["images", "masks"]
