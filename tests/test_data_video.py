@@ -24,6 +24,8 @@ from PIL import Image
 
 from liquidgs.cli import main as cli
 from liquidgs.data import DataConfig, check_dataset, load_dataset
+from liquidgs.data.capture import CaptureSettings, capture_scene
+from liquidgs.data.colmap import SolveOptions
 from liquidgs.data.video import extract_video_frames
 from liquidgs.media import write_video
 from video_scene import FOCAL, render_handheld_video
@@ -292,3 +294,19 @@ def test_bad_image_folders_and_masks_are_one_line_naming_the_file(handheld, tmp_
     code, _, stderr = run_cli(["data", "images", str(images), "--out", out])
     assert code == 2 and "is 64x48 but 0.png is 200x152; one shared camera needs one image size" in stderr
     assert sorted(p.name for p in tmp_path.iterdir()) == ["images", "masks"]
+
+
+def test_an_interrupt_mid_run_leaves_no_scene_and_no_partial_folder(handheld, tmp_path):
+    images = tmp_path / "images"
+    images.mkdir()
+    for n in range(4):
+        Image.fromarray(handheld.images[n]).save(images / f"{n}.png")
+
+    def interrupt_at_features(line: str) -> None:
+        if line.startswith("features:"):
+            raise KeyboardInterrupt
+
+    settings = CaptureSettings(solve=SolveOptions(threads=1))
+    with pytest.raises(KeyboardInterrupt):
+        capture_scene(images, tmp_path / "scene", settings, interrupt_at_features, video=False)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["images"]
