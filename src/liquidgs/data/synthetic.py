@@ -50,7 +50,9 @@ class Primitive:
     shape: Literal["sphere", "capsule", "box"]
     size: tuple[float, ...]  # sphere (radius,); capsule (radius, length); box (half x, half y, half z)
     colors: tuple[Color, Color]
-    pattern: Literal["checker", "stripes"]  # 3D checker cells, or bands along local z
+    # 3D checker cells, bands along local z, or cells of random shades between the two colours
+    # (no repeats, so a feature matcher can tell places apart: the video test scene's walls).
+    pattern: Literal["checker", "stripes", "speckle"]
     period: float
     rotation: np.ndarray  # local -> world
     translation: np.ndarray  # local origin in world coordinates
@@ -239,11 +241,24 @@ def _intersect(prim: Primitive, origin: np.ndarray, dirs: np.ndarray) -> tuple[n
     return t, points, normals
 
 
+def _cell_hash(cells: np.ndarray) -> np.ndarray:
+    """A deterministic pseudo-random value in [0, 1) per integer cell [N,3] (a 64-bit mixing hash)."""
+    key = (cells.astype(np.uint64) * np.array([0x9E3779B1, 0x85EBCA77, 0xC2B2AE3D], dtype=np.uint64)).sum(axis=1)
+    for shift in (33, 29, 32):
+        key ^= key >> np.uint64(shift)
+        key *= np.uint64(0xFF51AFD7ED558CCD)
+    return (key >> np.uint64(40)).astype(np.float64) / float(1 << 24)
+
+
 def _shade(prim: Primitive, points: np.ndarray, normals: np.ndarray) -> np.ndarray:
     # The quarter-cell offset keeps texture edges off the faces of boxes with round sizes.
     cells = np.floor(points / prim.period + 0.25).astype(np.int64)
-    parity = (cells.sum(axis=1) if prim.pattern == "checker" else cells[:, 2]) % 2
-    base = np.where(parity[:, None] == 0, np.asarray(prim.colors[0]), np.asarray(prim.colors[1]))
+    if prim.pattern == "speckle":
+        mix = _cell_hash(cells)[:, None]
+        base = (1.0 - mix) * np.asarray(prim.colors[0]) + mix * np.asarray(prim.colors[1])
+    else:
+        parity = (cells.sum(axis=1) if prim.pattern == "checker" else cells[:, 2]) % 2
+        base = np.where(parity[:, None] == 0, np.asarray(prim.colors[0]), np.asarray(prim.colors[1]))
     world_normals = _rotate(prim.rotation, normals)
     shade = np.full(len(points), AMBIENT)
     for direction, weight in LIGHTS:
