@@ -132,3 +132,17 @@ def test_vrig_preset_reads_quarter_resolution(scene_dir):
 def test_split_presets_are_rejected_for_dnerf(scene_dir):
     with pytest.raises(ConfigError, match="Nerfies preset"):
         load_dataset(DataConfig(path=scene_dir / "dnerf", split="vrig"))
+
+
+def test_moving_mask_marks_where_the_ground_truth_moves():
+    from liquidgs.data.synthetic import CAMERA_ANGLE_X, moving_mask, orbit_camera
+
+    size = 48
+    focal = 0.5 * size / np.tan(0.5 * CAMERA_ANGLE_X)
+    K = np.array([[focal, 0.0, size / 2], [0.0, focal, size / 2], [0.0, 0.0, 1.0]])
+    cam_to_world = orbit_camera(np.random.default_rng(3))
+    moving = moving_mask("puppet", K, cam_to_world, size, size, 0.35, 1 / 79)
+    assert moving.shape == (size, size) and 0 < moving.mean() < 0.2  # the limbs, not the frame
+    assert not moving_mask("puppet", K, cam_to_world, size, size, 0.35, 0.0).any()  # no time step, no motion
+    # Slow rigid motion moves fewer pixels per frame than the puppet's swinging limbs.
+    assert moving_mask("spinner", K, cam_to_world, size, size, 0.35, 1 / 79).mean() < moving.mean()

@@ -17,15 +17,16 @@ def test_demo_writes_the_report(tmp_path, monkeypatch, capsys):
     out = tmp_path / "report"
     assert cli(["demo", "--out", str(out), "--size", "32", "--iterations", "30"]) == 0
     report = (out / "report.md").read_text()
-    for label in ("D-3DGS MLP", "Liquid CfC", "SDE-LNN"):
+    for label in ("static 3DGS", "D-3DGS MLP", "Liquid CfC", "SDE-LNN"):
         assert f"| {label} |" in report
+    assert "| field | PSNR | moving-region PSNR |" in report and "of the test pixels" in report
     assert "**final**" in report and "Fastest-moving test frame" in report
     if LPIPS_DIR.is_dir():
         assert "LPIPS: LPIPS-Alex, v0.1, inputs scaled to [-1,1] (the paper reports LPIPS-VGG" in report
     else:
         assert "LPIPS-Alex unavailable: backbone weights not found" in report
     side_by_side = np.asarray(Image.open(out / "side_by_side.png"))
-    assert side_by_side.shape[:2] == (32, 4 * 32)  # ground truth | MLP | CfC | SDE-LNN
+    assert side_by_side.shape[:2] == (32, 5 * 32)  # ground truth | static | MLP | CfC | SDE-LNN
     assert len(imageio.mimread(out / "sweep.mp4")) == 48
     assert f"report written to {out.resolve()}" in capsys.readouterr().err.replace("\n", "")
     # Finished runs are reused: a second demo trains nothing and rewrites the same table.
