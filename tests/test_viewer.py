@@ -361,6 +361,15 @@ def test_viewer_in_a_real_browser(run_dir, test_renders, browser, tmp_path):
         screen.settled("07_side_by_side", viewer.frames_sent, mode="side by side")
         viewer.side_by_side.value = False
 
+        # Playback: time advances; without loop it stops at 1.
+        viewer.sweep_seconds.value = 1.0
+        viewer.play.value = True
+        wait_for(lambda: viewer.time_slider.value != second.time, "playback to move the time")
+        viewer.loop.value = False
+        wait_for(lambda: not viewer.play.value, "playback to stop at the end without loop")
+        assert viewer.time_slider.value == 1.0
+        viewer.time_slider.value = second.time
+
         # Record two keyframes with the GUI's buttons, save the path, render it.
         page.get_by_role("button", name="Add keyframe").click()
         wait_for(lambda: len(viewer.keyframes) == 1, "the first keyframe")

@@ -13,7 +13,6 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from liquidgs.data.scene import Frame
 from liquidgs.errors import LiquidGSError
 from liquidgs.gaussians import activate, read_ply
 from liquidgs.render import rasterize
@@ -121,6 +120,3 @@ def scene_centre_and_radius(points: torch.Tensor) -> tuple[np.ndarray, float]:
     radius = float(torch.quantile((points - centre).norm(dim=1), 0.9))
     return centre.double().numpy(), max(radius, 1e-3)
 
-
-def dataset_cameras(scene: RunScene) -> dict[str, list[Frame]]:
-    return {"train": list(scene.dataset.train), "test": list(scene.dataset.test)}

@@ -210,7 +210,8 @@ class Viewer:
         """Put the client's camera at a dataset camera and the time at its frame time."""
         c2w = np.linalg.inv(frame.viewmat.double().numpy())
         distance = max(float(np.dot(self.centre - c2w[:3, 3], c2w[:3, 2])), 1e-3)
-        aspect = client.camera.aspect if self._camera_ready[client.client_id].is_set() else 1.0
+        ready = self._camera_ready.get(client.client_id)
+        aspect = client.camera.aspect if ready is not None and ready.is_set() else 1.0
         # The vertical field of view that shows the whole image in a canvas of this aspect.
         half_height = 0.5 * max(frame.height, frame.width / aspect) / float(frame.K[1, 1])
         self.play.value = False
