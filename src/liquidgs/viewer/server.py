@@ -129,6 +129,7 @@ class Viewer:
         with contextlib.redirect_stdout(sys.stderr):  # viser's banner; our stdout is the URL (or JSON)
             self.server = viser.ViserServer(host=host, port=port, verbose=False)
         self.server.gui.configure_theme(control_width="medium", show_share_button=False)
+        self.server.gui.main_panel.dock_right()  # beside the picture, not over it (side by side)
         self.server.scene.set_up_direction(tuple(self.up))
         self.server.scene.world_axes.visible = False
         self._build_gui(camera_path_file or default_path)
