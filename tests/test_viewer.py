@@ -180,7 +180,7 @@ def test_benchmark_prints_the_render_loop_frame_rate(run_dir, capsys):
     assert record["rest"]["fps"] > 0 and record["moving"]["fps"] > 0
 
 
-def test_ply_sequence_renders_the_baked_run(run_dir, tmp_path):
+def test_ply_sequence_renders_the_baked_run(run_dir, tmp_path, capsys):
     from liquidgs.viewer.scenes import PlyScene, load_runs
     from liquidgs.viewer.server import letterbox
 
@@ -192,6 +192,11 @@ def test_ply_sequence_renders_the_baked_run(run_dir, tmp_path):
     for t in (0.0, 0.5, 1.0):
         torch.testing.assert_close(ply.render(camera, t), run.render(camera, t), atol=2e-3, rtol=0)
     assert (ply.render(camera, 0.0) - ply.render(camera, 1.0)).abs().mean() > 1e-3
+    # The command serves it (here: its benchmark, through the same viewer).
+    capsys.readouterr()
+    flags = ["--port", "0", "--resolution", "32", "--benchmark", "2"]
+    assert cli(["view", "--ply", str(tmp_path / "sequence"), *flags]) == 0
+    assert json.loads(capsys.readouterr().out)["scene"] == "sequence"
 
 
 def test_uncertainty_is_the_estimate_render_writes(run_dir, tmp_path):

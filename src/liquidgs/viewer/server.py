@@ -151,7 +151,8 @@ class Viewer:
             labels = [s.label for s in self.scenes]
             self.scene_choice = gui.add_dropdown("run", labels, initial_value=labels[0])
             self.side_by_side = gui.add_checkbox("side by side", initial_value=False, disabled=len(self.scenes) < 2)
-            self.resolution = gui.add_slider("resolution", min=64, max=1024, step=32, initial_value=self.max_side)
+            top = max(1024, self.max_side)  # --resolution may ask for more than the slider's usual range
+            self.resolution = gui.add_slider("resolution", min=32, max=top, step=32, initial_value=self.max_side)
             noisy = any(s.has_noise for s in self.scenes)
             self.uncertainty = gui.add_checkbox("uncertainty (sde)", initial_value=False, disabled=not noisy)
             self.samples = gui.add_slider("MC samples", min=2, max=32, step=1, initial_value=8, disabled=not noisy)
@@ -340,8 +341,10 @@ class Viewer:
         except OSError as err:
             self.path_text.content = f"could not write {path}: {err.strerror or err}"
             return None
-        command = f"liquidgs render --run {self.runs[0].run.run_dir} --camera-path {written}" if self.runs else ""
-        self.path_text.content = f"{len(self.keyframes)} keyframes saved to `{written}`\n\n`{command}`"
+        self.path_text.content = f"{len(self.keyframes)} keyframes saved to `{written}`"
+        if self.runs:
+            command = f"liquidgs render --run {self.runs[0].run.run_dir} --camera-path {written}"
+            self.path_text.content += f"\n\nRender it: `{command}`"
         return written
 
     # ----- life cycle -----------------------------------------------------------------------
