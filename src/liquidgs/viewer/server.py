@@ -79,7 +79,8 @@ def heat_map(std: torch.Tensor) -> tuple[np.ndarray, float]:
 
 @dataclass
 class FrameStats:
-    """Exponential moving average of the time per frame sent (render + encode + send)."""
+    """Exponential moving average of the time per frame sent: render + encode + send, or the
+    interval between frames when they follow each other without a pause."""
 
     seconds: float = 0.0
     frames: int = 0
@@ -115,6 +116,7 @@ class Viewer:
         self._snapped: dict[int, tuple[Frame, np.ndarray]] = {}
         self._camera_ready: dict[int, threading.Event] = {}
         self._path_size: dict[int, tuple[int, int]] = {}
+        self._render_threads: list[threading.Thread] = []
         self.cameras = self._dataset_cameras()
         if self.runs:
             up = -torch.stack([f.viewmat[1, :3] for f in self.runs[0].dataset.train]).mean(0)
@@ -199,7 +201,9 @@ class Viewer:
         ready = threading.Event()
         self._camera_ready[client.client_id] = ready
         client.camera.on_update(lambda _: ready.set())
-        threading.Thread(target=self._client_loop, args=(client, ready), name="viewer-render", daemon=True).start()
+        thread = threading.Thread(target=self._client_loop, args=(client, ready), name="viewer-render", daemon=True)
+        self._render_threads.append(thread)
+        thread.start()
 
     def _set_camera(self, client: viser.ClientHandle, c2w: np.ndarray, look_at: np.ndarray, fov: float) -> None:
         with client.atomic():
@@ -244,13 +248,14 @@ class Viewer:
         if not ready.wait(timeout=30.0):
             return
         self._initial_view(client)
-        rendered = None
+        rendered, previous_end = None, None
         while not self._stopping.is_set() and client.client_id in self._camera_ready:
             camera = client.camera
             moving = time.time() - camera.update_timestamp < REST_SECONDS
             side = max(32, self.resolution.value // 2) if moving else int(self.resolution.value)
             state = (tuple(camera.wxyz), tuple(camera.position), camera.fov, camera.aspect, side, self.version)
             if state == rendered:
+                previous_end = None  # idle: the next frame is timed on its own
                 time.sleep(0.01)
                 continue
             start = time.perf_counter()
@@ -263,8 +268,10 @@ class Viewer:
                 if client.client_id not in self._camera_ready:
                     return
                 raise
-            self.stats.add(time.perf_counter() - start)
-            rendered = state
+            end = time.perf_counter()
+            # Back to back (playing, dragging) the rate is the time between frames sent.
+            self.stats.add(end - (previous_end if previous_end is not None else start))
+            rendered, previous_end = state, end
             self._path_size[client.client_id] = (width, height)
             self.frames_sent += 1
             self.last_sent = {"time": self.time_slider.value, "side": side, "moving": moving, **info}
@@ -355,5 +362,7 @@ class Viewer:
 
     def stop(self) -> None:
         self._stopping.set()
+        for thread in self._render_threads:  # let a frame being rendered finish before the server goes
+            thread.join(timeout=10.0)
         with contextlib.redirect_stdout(sys.stderr):
             self.server.stop()
