@@ -12,6 +12,7 @@ import math
 import sys
 import threading
 import time
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -28,6 +29,8 @@ from liquidgs.render.camera_path import PathCamera, write_camera_path
 from liquidgs.viewer.scenes import Camera, PlyScene, RunScene, scene_centre_and_radius
 
 REST_SECONDS = 0.3
+# Frames closer than this in time count as a stream (playing, dragging): its rate is shown.
+IDLE_SECONDS = 0.5
 DEFAULT_MAX_SIDE = 256
 JPEG_QUALITY = 90
 SNAP_TOLERANCE = 1e-3
@@ -128,6 +131,8 @@ class Viewer:
         points = self.runs[0].run.params["means"] if self.runs else scenes[0].frames[0]["means"]
         self.centre, self.radius = scene_centre_and_radius(points.detach().float().cpu())
 
+        # A frame finished just after its browser went away is dropped by viser, which warns; expected here.
+        warnings.filterwarnings("ignore", message="Queued a BackgroundImageMessage on a closed connection")
         with contextlib.redirect_stdout(sys.stderr):  # viser's banner; our stdout is the URL (or JSON)
             self.server = viser.ViserServer(host=host, port=port, verbose=False)
         self.server.gui.configure_theme(control_width="medium", show_share_button=False)
@@ -255,7 +260,8 @@ class Viewer:
             side = max(32, self.resolution.value // 2) if moving else int(self.resolution.value)
             state = (tuple(camera.wxyz), tuple(camera.position), camera.fov, camera.aspect, side, self.version)
             if state == rendered:
-                previous_end = None  # idle: the next frame is timed on its own
+                if previous_end is not None and time.perf_counter() - previous_end > IDLE_SECONDS:
+                    previous_end = None  # the picture rested: the next frame is timed on its own
                 time.sleep(0.01)
                 continue
             start = time.perf_counter()
@@ -269,7 +275,6 @@ class Viewer:
                     return
                 raise
             end = time.perf_counter()
-            # Back to back (playing, dragging) the rate is the time between frames sent.
             self.stats.add(end - (previous_end if previous_end is not None else start))
             rendered, previous_end = state, end
             self._path_size[client.client_id] = (width, height)
