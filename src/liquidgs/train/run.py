@@ -55,7 +55,6 @@ class TrainedRun:
             sh_degree=self.sh_degree, background=background, backend=self.config.backend,
         )  # fmt: skip
 
-
     @torch.no_grad()
     def monte_carlo(self, viewmat, K, width: int, height: int, time: float, background, samples: int):
         """Per-pixel mean [H,W,3] and standard deviation (mean over RGB) [H,W] of `samples` noisy renders."""

@@ -98,6 +98,8 @@ class FrameStats:
 
 
 class Viewer:
+    """A viser server showing `scenes`; controls are shared by all browsers, cameras are per browser."""
+
     def __init__(
         self,
         scenes: list[RunScene] | list[PlyScene],
