@@ -9,6 +9,9 @@ LPIPS_REF := .venv-lpips-ref
 
 .PHONY: demo test lint setup
 
+# As the liquidgs command does (liquidgs/__init__.py): idle OpenMP threads sleep, not spin.
+export OMP_WAIT_POLICY ?= PASSIVE
+
 # Offline LPIPS backbone weights, where the project's shared folder provides them.
 ifneq ($(wildcard ../shared/data/lpips),)
 export LIQUIDGS_LPIPS_WEIGHTS ?= $(abspath ../shared/data/lpips)

@@ -2,6 +2,8 @@
 
 import json
 
+import pytest
+
 from liquidgs.cli import COMMANDS
 from liquidgs.cli import main as cli
 
@@ -18,7 +20,7 @@ def test_unknown_command_and_no_command_exit_2(capsys):
     assert "unknown command 'fly'" in capsys.readouterr().err
     assert cli([]) == 2
     assert cli(["bench"]) == 2
-    assert "liquidgs bench {raster,fields}" in capsys.readouterr().err
+    assert "liquidgs bench {raster,fields,train}" in capsys.readouterr().err
 
 
 def test_every_command_module_imports_and_has_main():
@@ -28,10 +30,31 @@ def test_every_command_module_imports_and_has_main():
         assert callable(importlib.import_module(module_name).main)
 
 
-def test_bench_raster_prints_one_json_object_per_case(capsys):
-    assert cli(["bench", "raster", "--json", "--cases", "32x32/300,48x40/500", "--repeats", "1"]) == 0
+@pytest.mark.parametrize("backend", ["torch", "cpu"])
+def test_bench_raster_prints_one_json_object_per_case(capsys, backend):
+    args = ["bench", "raster", "--json", "--cases", "32x32/300,48x40/500", "--repeats", "1", "--backend", backend]
+    assert cli(args) == 0
     rows = [json.loads(line) for line in capsys.readouterr().out.splitlines() if line.strip()]
     assert [(r["width"], r["height"], r["n_gaussians"]) for r in rows] == [(32, 32, 300), (48, 40, 500)]
     for row in rows:
-        assert row["backend"] == "torch" and row["device"] == "cpu"
+        assert row["backend"] == backend and row["device"] == "cpu" and row["tile_size"] == 4
         assert row["forward_ms"] > 0 and row["backward_ms"] > 0 and row["peak_memory_mb"] >= 0
+
+
+def test_bench_train_times_every_phase_of_real_steps(capsys, tmp_path):
+    output = tmp_path / "bench.jsonl"
+    args = ["bench", "train", "--json", "--size", "32", "--from-step", "120", "--steps", "4", "--output", str(output)]
+    assert cli(args) == 0
+    record = json.loads(capsys.readouterr().out)
+    assert json.loads(output.read_text()) == record
+    assert record["scene"] == "puppet" and record["resolution"] == [32, 32] and record["field"] == "mlp"
+    assert record["timed_steps"] == [121, 124] and record["n_gaussians"]["min"] > 0
+    phases = record["phases_ms"]
+    assert set(phases) == {
+        "field_forward", "raster_forward", "loss_forward", "loss_backward", "raster_backward", "field_backward",
+        "densification", "optimizer_step", "other",
+    }  # fmt: skip
+    # After the tiny preset's 100-step warm-up the field runs, so both of its passes take time.
+    assert all(phases[name] > 0 for name in ("field_forward", "field_backward", "raster_forward", "raster_backward"))
+    assert sum(phases.values()) == pytest.approx(record["ms_per_iteration"], rel=0.5)
+    assert record["torch_threads"] >= 1 and record["machine"]

@@ -122,9 +122,9 @@ def test_gate_noise_is_independent_per_cell_pass_gaussian_and_unit(monkeypatch):
     for cell in field.cells:
         original = cell.gate_logits
 
-        def recording(z, tau, lam=0.0, eps=None, original=original):
-            noisy = original(z, tau, lam, eps)
-            draws.append((noisy - original(z, tau)).detach())
+        def recording(z, tau, lam=0.0, eps=None, time_heads=None, original=original):
+            noisy = original(z, tau, lam, eps, time_heads)
+            draws.append((noisy - original(z, tau, time_heads=time_heads)).detach())
             return noisy
 
         monkeypatch.setattr(cell, "gate_logits", recording)

@@ -9,7 +9,7 @@ import pytest
 import torch
 from gsplat.cuda._torch_impl import _fully_fused_projection, _quat_scale_to_covar_preci, _spherical_harmonics
 
-from liquidgs.render import RenderOutput, focal_from_fov, rasterize
+from liquidgs.render import RenderOutput, cpu_backend, focal_from_fov, rasterize
 from liquidgs.render.reference import composite_dense
 
 
@@ -323,13 +323,14 @@ def test_absgrad_is_the_sum_of_per_pixel_absolute_gradients():
     torch.testing.assert_close(means2d.grad[ids], per_pixel.grad.sum(dim=0), rtol=1e-9, atol=1e-12)
 
 
-def test_auto_backend_on_cpu_uses_torch_and_logs_once(caplog):
+def test_auto_backend_on_cpu_uses_the_compiled_kernel_or_torch_and_logs_once(caplog):
     scene = random_scene(5)
     with caplog.at_level(logging.INFO, logger="liquidgs.render.rasterize"):
         first = render(scene, backend="auto")
         render(scene, backend="auto")
-    assert first.info["backend"] == "torch"
-    assert sum("backend='auto' uses torch" in record.message for record in caplog.records) <= 1
+    expected = "cpu" if cpu_backend.unavailable_reason() is None else "torch"
+    assert first.info["backend"] == expected
+    assert sum(f"backend='auto' uses {expected}" in record.message for record in caplog.records) <= 1
 
 
 def test_gsplat_backend_on_cpu_raises():

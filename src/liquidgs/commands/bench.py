@@ -1,4 +1,4 @@
-"""`liquidgs bench {raster,fields}`: benchmarks that print one JSON object per case."""
+"""`liquidgs bench {raster,fields,train}`: benchmarks that print one JSON object per case."""
 
 from __future__ import annotations
 
@@ -10,6 +10,7 @@ from liquidgs.args import one_line_usage_errors
 BENCHMARKS = {
     "raster": "liquidgs.render.benchmark",
     "fields": "liquidgs.fields.benchmark",
+    "train": "liquidgs.train.benchmark",
 }
 
 

@@ -1,4 +1,5 @@
-"""`liquidgs data {synth,check}`: generate built-in synthetic scenes, validate dataset folders."""
+"""`liquidgs data {synth,check,video,images}`: generate built-in synthetic scenes, validate dataset
+folders, and turn your own video or image folder into a scene (cameras solved by COLMAP)."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ import tyro
 
 from liquidgs.args import parse_args
 from liquidgs.data import DataConfig, check_dataset, generate_synthetic
+from liquidgs.data.colmap import Matcher, SolveOptions, import_pycolmap
 from liquidgs.errors import ConfigError
 
 
@@ -48,7 +50,47 @@ class CheckArgs:
     """D-NeRF: use the val split as test."""
 
 
+@dataclass(kw_only=True)
+class CaptureArgs:
+    out: Path
+    """Scene folder to create (must not exist, or be empty); written in the Nerfies layout."""
+    max_size: int = 800
+    """Longest side of the full-size (rgb/1x) frames in pixels; rgb/2x and rgb/4x are made from them."""
+    matcher: Matcher = "sequential"
+    """Which frame pairs COLMAP matches: sequential (each frame with its next 10, and 16, 32, ... after
+    it; for frames in time order) or exhaustive (every pair; slower, for hard or looping captures)."""
+    mask_dynamic: Path | None = None
+    """Folder of masks of the moving things, one per frame (video: <frame number, 6 digits>.png, counted
+    from 0 in the decoded stream; images: <image stem>.png). Nonzero pixels are moving: COLMAP
+    takes no features there, so cameras are solved from the static scene only."""
+    holdout_every: int = 8
+    """Test split: of the registered frames in time order, every K-th (the K/2-th, then every K) is held out."""
+    threads: int = -1
+    """CPU threads for COLMAP (-1: all cores)."""
+
+
+@dataclass(kw_only=True)
+class VideoArgs(CaptureArgs):
+    """Your own video -> a dynamic scene: frames (ffmpeg), cameras (COLMAP), Nerfies layout."""
+
+    video: tyro.conf.Positional[Path]
+    """The video file (anything ffmpeg decodes: mp4, mov, mkv, ...)."""
+    fps: float | None = None
+    """Keep frames at this rate (the first of each 1/fps seconds)."""
+    frames: int | None = None
+    """Keep this many frames, evenly spread over the video (default 100 when neither is given)."""
+
+
+@dataclass(kw_only=True)
+class ImagesArgs(CaptureArgs):
+    """A folder of images in time order (name order, frame2 before frame10) -> a dynamic scene."""
+
+    images: tyro.conf.Positional[Path]
+    """Folder of .png/.jpg images, all the same size."""
+
+
 MAX_SIZE = 4096
+DEFAULT_VIDEO_FRAMES = 100
 MAX_FRAMES = 10_000
 
 
@@ -81,16 +123,60 @@ def check(args: CheckArgs) -> int:
     return 0
 
 
-SUBCOMMANDS = {"synth": (SynthArgs, synth), "check": (CheckArgs, check)}
+def _capture(args: CaptureArgs, source: Path, video: bool, fps: float | None = None, frames: int | None = None) -> int:
+    from liquidgs.data.capture import CaptureSettings, capture_scene
+    from liquidgs.data.video import check_sampling
+
+    check_sampling(fps, frames, args.max_size)
+    if args.threads == 0 or args.threads < -1:
+        raise ConfigError(f"--threads must be -1 (all cores) or a positive count, got {args.threads}")
+    import_pycolmap()  # fail before any work when it is missing
+    settings = CaptureSettings(
+        fps=fps,
+        frames=frames,
+        max_size=args.max_size,
+        holdout_every=args.holdout_every,
+        mask_dir=args.mask_dynamic,
+        solve=SolveOptions(matcher=args.matcher, threads=args.threads),
+    )
+    summary = capture_scene(source, args.out, settings, lambda line: print(line, flush=True), video=video)
+    width = summary.image_size[0]
+    quick = next(k for k in (4, 2, 1) if width / k >= 128 or k == 1)
+    print(
+        f"done: {summary.frames_registered}/{summary.frames_total} frames registered"
+        + (f" ({len(summary.dropped)} dropped, listed in capture.json)" if summary.dropped else "")
+        + f", mean reprojection error {summary.mean_reprojection_error_px:.2f} px, {summary.points} points"
+    )
+    print("time: " + ", ".join(f"{stage} {value:.1f} s" for stage, value in summary.seconds.items()))
+    print(f"scene: {args.out} (check it with: liquidgs data check {args.out})")
+    print(f"train: liquidgs train --data {args.out} --field mlp --preset nerfds")
+    print(f"quick look on a CPU: liquidgs train --data {args.out} --field mlp --preset tiny --downscale {quick}")
+    return 0
+
+
+def video(args: VideoArgs) -> int:
+    frames = args.frames if args.frames is not None or args.fps is not None else DEFAULT_VIDEO_FRAMES
+    return _capture(args, args.video, True, fps=args.fps, frames=frames)
+
+
+def images(args: ImagesArgs) -> int:
+    return _capture(args, args.images, False)
+
+
+SUBCOMMANDS = {
+    "synth": (SynthArgs, synth),
+    "check": (CheckArgs, check),
+    "video": (VideoArgs, video),
+    "images": (ImagesArgs, images),
+}
 
 
 def main(argv: list[str]) -> int:
     if not argv or argv[0] not in SUBCOMMANDS:
-        usage = "usage: liquidgs data {synth,check} [--help]"
+        usage = "usage: liquidgs data {synth,check,video,images} [--help]"
         if argv and argv[0] in ("-h", "--help"):
             print(usage)
             return 0
-        raise ConfigError(f"choose a subcommand: synth or check ({usage})")
+        raise ConfigError(f"choose a subcommand: synth, check, video or images ({usage})")
     spec, run = SUBCOMMANDS[argv[0]]
     return run(parse_args(spec, argv[1:], prog=f"liquidgs data {argv[0]}", description=spec.__doc__))
-

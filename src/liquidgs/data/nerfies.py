@@ -18,6 +18,23 @@ from liquidgs.data.scene import BACKGROUNDS, NERFIES_PRESETS, DataConfig, Frame,
 from liquidgs.data.validate import as_array, as_number, check_rotation, probe_image, read_json, require
 from liquidgs.errors import ConfigError, DataError
 
+# The layout's names, for the reader here and for the writers (the own-video pipeline).
+SCENE_FILE = "scene.json"
+DATASET_FILE = "dataset.json"
+METADATA_FILE = "metadata.json"
+POINTS_FILE = "points.npy"
+CAMERA_FOLDER = "camera"
+RGB_FOLDER = "rgb"
+
+
+def camera_path(root: Path, image_id: str) -> Path:
+    return root / CAMERA_FOLDER / f"{image_id}.json"
+
+
+def rgb_folder(root: Path, factor: int) -> Path:
+    """rgb/<factor>x: the images at 1/factor of the cameras' image_size."""
+    return root / RGB_FOLDER / f"{factor}x"
+
 
 @dataclass(frozen=True)
 class NerfiesCamera:
@@ -31,6 +48,22 @@ class NerfiesCamera:
     skew: float
     image_size: tuple[int, int]  # (width, height)
     distortion: np.ndarray  # radial then tangential coefficients
+
+
+def camera_json(camera: NerfiesCamera) -> dict:
+    """The camera/<id>.json that read_camera reads back as `camera`."""
+    radial, tangential = camera.distortion[:3], camera.distortion[3:5]
+    return {
+        "orientation": camera.rotation.tolist(),
+        "position": camera.position.tolist(),
+        "focal_length": float(camera.focal_length),
+        "principal_point": camera.principal_point.tolist(),
+        "skew": float(camera.skew),
+        "pixel_aspect_ratio": float(camera.pixel_aspect_ratio),
+        "radial_distortion": [*map(float, radial), *[0.0] * (3 - len(radial))],
+        "tangential_distortion": [*map(float, tangential), *[0.0] * (2 - len(tangential))],
+        "image_size": list(camera.image_size),
+    }
 
 
 def read_camera(path: Path) -> NerfiesCamera:
@@ -74,12 +107,12 @@ def read_nerfies(cfg: DataConfig) -> SceneDataset:
     preset = "nerfds" if cfg.split == "auto" else cfg.split
     factor = cfg.downscale or NERFIES_PRESETS[preset]
 
-    scene_path = root / "scene.json"
+    scene_path = root / SCENE_FILE
     scene = read_json(scene_path)
     scale = as_number(require(scene, "scale", scene_path, "scale"), scene_path, "scale", positive=True)
     center = as_array(require(scene, "center", scene_path, "center"), (3,), scene_path, "center")
 
-    dataset_path = root / "dataset.json"
+    dataset_path = root / DATASET_FILE
     dataset = read_json(dataset_path)
     if preset == "interp":
         ids = _id_list(dataset, "ids", dataset_path)
@@ -93,7 +126,7 @@ def read_nerfies(cfg: DataConfig) -> SceneDataset:
         if not ids:
             raise DataError(dataset_path, f"empty {split} split for preset '{preset}'", field=field)
 
-    times = _read_times(root / "metadata.json", [i for ids, _ in id_splits.values() for i in ids])
+    times = _read_times(root / METADATA_FILE, [i for ids, _ in id_splits.values() for i in ids])
     folder, source_factor = _image_folder(root, factor)
     extra_factor = factor // source_factor  # area-averaging still needed after the folder's own
     background = BACKGROUNDS[cfg.background]
@@ -105,10 +138,10 @@ def read_nerfies(cfg: DataConfig) -> SceneDataset:
     for split, (ids, field) in id_splits.items():
         frames: list[Frame] = []
         for image_id in ids:
-            camera_path = root / "camera" / f"{image_id}.json"
-            if not camera_path.is_file():
-                raise DataError(dataset_path, f"id '{image_id}' has no camera file {camera_path}", field=field)
-            camera = read_camera(camera_path)
+            camera_file = camera_path(root, image_id)
+            if not camera_file.is_file():
+                raise DataError(dataset_path, f"id '{image_id}' has no camera file {camera_file}", field=field)
+            camera = read_camera(camera_file)
             if np.any(camera.distortion != 0):
                 distorted.append(image_id)
             if camera.skew != 0:
@@ -119,7 +152,7 @@ def read_nerfies(cfg: DataConfig) -> SceneDataset:
             expected = (camera.image_size[0] / factor, camera.image_size[1] / factor)
             if abs(width - expected[0]) >= 1 or abs(height - expected[1]) >= 1:
                 raise DataError(
-                    camera_path,
+                    camera_file,
                     f"image {image} gives {width}x{height} at 1/{factor}, expected {expected[0]:g}x{expected[1]:g}",
                     field="image_size",
                 )
@@ -146,7 +179,7 @@ def read_nerfies(cfg: DataConfig) -> SceneDataset:
             f"{len(set(skewed))} camera(s) have nonzero skew (e.g. camera/{skewed[0]}.json); "
             "K carries it, but a rasteriser that reads only fx, fy, cx, cy ignores it"
         )
-    points, colors = _read_points(root / "points.npy", center, scale)
+    points, colors = _read_points(root / POINTS_FILE, center, scale)
     return SceneDataset(
         format="nerfies",
         scene_name=root.name,
@@ -180,12 +213,12 @@ def _read_times(path: Path, ids: list[str]) -> dict[str, float]:
 
 def _image_folder(root: Path, factor: int) -> tuple[Path, int]:
     """rgb/<factor>x, or else the finest rgb/<k>x with k dividing factor (area-averaged further)."""
-    available = sorted(int(p.name[:-1]) for p in (root / "rgb").glob("*x") if p.name[:-1].isdigit() and p.is_dir())
+    available = sorted(int(p.name[:-1]) for p in (root / RGB_FOLDER).glob("*x") if p.name[:-1].isdigit() and p.is_dir())
     for k in sorted(available, reverse=True):
         if factor % k == 0:
-            return root / "rgb" / f"{k}x", k
+            return rgb_folder(root, k), k
     raise DataError(
-        root / "rgb" / f"{factor}x",
+        rgb_folder(root, factor),
         "image folder not found, and no rgb/<k>x folder with k dividing "
         f"{factor} to downscale from (found: {', '.join(f'{k}x' for k in available) or 'none'})",
     )

@@ -50,7 +50,9 @@ class Primitive:
     shape: Literal["sphere", "capsule", "box"]
     size: tuple[float, ...]  # sphere (radius,); capsule (radius, length); box (half x, half y, half z)
     colors: tuple[Color, Color]
-    pattern: Literal["checker", "stripes"]  # 3D checker cells, or bands along local z
+    # 3D checker cells, bands along local z, or cells of random shades between the two colours
+    # (no repeats, so a feature matcher can tell places apart: the video test scene's walls).
+    pattern: Literal["checker", "stripes", "speckle"]
     period: float
     rotation: np.ndarray  # local -> world
     translation: np.ndarray  # local origin in world coordinates
@@ -239,11 +241,24 @@ def _intersect(prim: Primitive, origin: np.ndarray, dirs: np.ndarray) -> tuple[n
     return t, points, normals
 
 
+def _cell_hash(cells: np.ndarray) -> np.ndarray:
+    """A deterministic pseudo-random value in [0, 1) per integer cell [N,3] (a 64-bit mixing hash)."""
+    key = (cells.astype(np.uint64) * np.array([0x9E3779B1, 0x85EBCA77, 0xC2B2AE3D], dtype=np.uint64)).sum(axis=1)
+    for shift in (33, 29, 32):
+        key ^= key >> np.uint64(shift)
+        key *= np.uint64(0xFF51AFD7ED558CCD)
+    return (key >> np.uint64(40)).astype(np.float64) / float(1 << 24)
+
+
 def _shade(prim: Primitive, points: np.ndarray, normals: np.ndarray) -> np.ndarray:
     # The quarter-cell offset keeps texture edges off the faces of boxes with round sizes.
     cells = np.floor(points / prim.period + 0.25).astype(np.int64)
-    parity = (cells.sum(axis=1) if prim.pattern == "checker" else cells[:, 2]) % 2
-    base = np.where(parity[:, None] == 0, np.asarray(prim.colors[0]), np.asarray(prim.colors[1]))
+    if prim.pattern == "speckle":
+        mix = _cell_hash(cells)[:, None]
+        base = (1.0 - mix) * np.asarray(prim.colors[0]) + mix * np.asarray(prim.colors[1])
+    else:
+        parity = (cells.sum(axis=1) if prim.pattern == "checker" else cells[:, 2]) % 2
+        base = np.where(parity[:, None] == 0, np.asarray(prim.colors[0]), np.asarray(prim.colors[1]))
     world_normals = _rotate(prim.rotation, normals)
     shade = np.full(len(points), AMBIENT)
     for direction, weight in LIGHTS:
@@ -380,6 +395,27 @@ def split_of(index: int, frames: int) -> str:
 
 def _write_json(path: Path, data: object) -> None:
     path.write_text(json.dumps(data, indent=2) + "\n")
+
+
+MOVING_THRESHOLD = 0.1
+"""A pixel moves when some channel (or coverage) changes by more than this between neighbouring frames."""
+
+
+def moving_mask(
+    name: str, K: np.ndarray, cam_to_world: np.ndarray, width: int, height: int, time: float, step: float
+) -> np.ndarray:
+    """bool [H,W]: pixels of this view whose ground truth changes between time - step and time + step.
+
+    The scene is rendered again from the same camera at the neighbouring frame times (clamped
+    to [0, 1]), so the mask is where the motion is, not where the camera moved.
+    """
+    frames = []
+    for t in (max(time - step, 0.0), time, min(time + step, 1.0)):
+        rgba = render_rgba(scene_primitives(name, t), K, cam_to_world, width, height).astype(np.float32) / 255.0
+        frames.append(np.concatenate([rgba[..., :3] * rgba[..., 3:], rgba[..., 3:]], axis=-1))
+    before, now, after = frames
+    changed = np.maximum(np.abs(now - before), np.abs(now - after)).max(axis=-1)
+    return changed > MOVING_THRESHOLD
 
 
 def generate_synthetic(

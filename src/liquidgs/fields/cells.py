@@ -80,6 +80,15 @@ class LiquidCell(nn.Module):
     def features(self, u: torch.Tensor, h: torch.Tensor) -> torch.Tensor:
         return self.backbone(torch.cat((u, h), dim=1))
 
+    def heads(self, z: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        """(ff1 z, ff2 z, time_a z[, time_b z]) from one matrix product: the heads are narrow
+        (H columns each), and one product with all of them side by side runs several times
+        faster on a CPU than four. The parameters stay the four Linear layers."""
+        layers = [self.ff1, self.ff2, self.time_a] + ([self.time_b] if self.time_b is not None else [])
+        weight = torch.cat([layer.weight for layer in layers])
+        bias = torch.cat([layer.bias for layer in layers])
+        return F.linear(z, weight, bias).split(self.hidden_size, dim=1)
+
     def noise_scale(self, z: torch.Tensor, lam: float) -> torch.Tensor | float | None:
         """The noise standard deviation: None when lam == 0, else lam or, adaptive,
         lam_i = lam * (floor + (1 - floor) * sigmoid(w . z + b)), one value per Gaussian.
@@ -108,19 +117,21 @@ class CfCCell(LiquidCell):
     B == H).
     """
 
-    def gate_logits(self, z, tau, lam: float = 0.0, eps: torch.Tensor | None = None) -> torch.Tensor:
-        """The time gate's pre-activation time_a(z) * tau + (time_b(z) + lam * eps)."""
-        t_b = self.time_b(z)
+    def gate_logits(self, z, tau, lam: float = 0.0, eps: torch.Tensor | None = None, time_heads=None) -> torch.Tensor:
+        """The time gate's pre-activation time_a(z) * tau + (time_b(z) + lam * eps); time_heads,
+        when given, are (time_a(z), time_b(z)) already computed."""
+        t_a, t_b = time_heads if time_heads is not None else (self.time_a(z), self.time_b(z))
         scale = self.noise_scale(z, lam)
         if scale is not None:
             t_b = t_b + scale * (torch.randn_like(t_b) if eps is None else eps)
-        return self.time_a(z) * tau + t_b
+        return t_a * tau + t_b
 
     def forward(self, u, h, tau, lam: float = 0.0, eps: torch.Tensor | None = None) -> torch.Tensor:
         z = self.features(u, h)
-        g = torch.tanh(self.ff1(z))
-        h_cand = torch.tanh(self.ff2(z))
-        sigma = torch.sigmoid(self.gate_logits(z, tau, lam, eps))
+        ff1, ff2, t_a, t_b = self.heads(z)
+        g = torch.tanh(ff1)
+        h_cand = torch.tanh(ff2)
+        sigma = torch.sigmoid(self.gate_logits(z, tau, lam, eps, (t_a, t_b)))
         return g * (1.0 - sigma) + sigma * h_cand
 
 
@@ -210,7 +221,8 @@ class OUCell(LiquidCell):
 
     def coefficients(self, u, h):
         z = self.features(u, h)
-        return z, torch.tanh(self.ff1(z)), F.softplus(self.time_a(z)), torch.tanh(self.ff2(z))
+        ff1, ff2, t_a = self.heads(z)
+        return z, torch.tanh(ff1), F.softplus(t_a), torch.tanh(ff2)
 
     def forward(self, u, h, tau, lam: float = 0.0, eps: torch.Tensor | None = None) -> torch.Tensor:
         z, h0, f, a = self.coefficients(u, h)

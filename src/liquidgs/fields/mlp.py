@@ -42,7 +42,11 @@ class MLPField(DeformationField):
             h = F.relu(layer(h))
             if i == self.skip_after:
                 h = torch.cat((inputs, h), dim=1)
-        return self.head_xyz(h), self.head_rotation(h), self.head_scaling(h)
+        # The three heads as one product (they are 3, 4 and 3 columns wide); parameters stay separate.
+        heads = (self.head_xyz, self.head_rotation, self.head_scaling)
+        weight = torch.cat([head.weight for head in heads])
+        bias = torch.cat([head.bias for head in heads])
+        return F.linear(h, weight, bias).split((3, 4, 3), dim=1)
 
     def flops_per_gaussian(self) -> int:
         return linear_flops(self)

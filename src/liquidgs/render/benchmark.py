@@ -25,7 +25,7 @@ import torch
 from liquidgs.errors import ConfigError
 from liquidgs.render.projection import project_gaussians
 from liquidgs.render.rasterize import (
-    DEFAULT_TILE_SIZE,
+    BACKENDS,
     DEPTH_ALPHA_FLOOR,
     focal_from_fov,
     rasterize,
@@ -166,10 +166,10 @@ def machine_description(device: torch.device) -> str:
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="liquidgs bench raster", description=__doc__.splitlines()[0])
     parser.add_argument("--json", action="store_true", help="print one JSON object per case (default: text)")
-    parser.add_argument("--backend", default="torch", choices=("torch", "gsplat", "auto"))
+    parser.add_argument("--backend", default="auto", choices=BACKENDS)
     parser.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
     parser.add_argument("--cases", default=DEFAULT_CASES, help=f"comma-separated WxH/N (default {DEFAULT_CASES})")
-    parser.add_argument("--tile-sizes", default=str(DEFAULT_TILE_SIZE), help="comma-separated (torch backend)")
+    parser.add_argument("--tile-sizes", help="comma-separated (torch and cpu backends; default: the backend's)")
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--warmup", type=int, default=1)
     parser.add_argument(
@@ -192,10 +192,11 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--device: unknown device {args.device!r}") from None
     cases = [parse_case(text) for text in args.cases.split(",") if text]
     try:
-        tile_sizes = [int(text) for text in args.tile_sizes.split(",")]
+        tile_sizes = [int(text) for text in args.tile_sizes.split(",")] if args.tile_sizes else [None]
     except ValueError:
         raise ConfigError(f"--tile-sizes: comma-separated integers expected, got {args.tile_sizes!r}") from None
-    if not cases or not all(1 <= size <= 256 for size in tile_sizes) or args.repeats < 1 or args.warmup < 0:
+    tile_sizes_ok = all(size is None or 1 <= size <= 256 for size in tile_sizes)
+    if not cases or not tile_sizes_ok or args.repeats < 1 or args.warmup < 0:
         raise ConfigError("bench raster: need at least one case, tile sizes in 1..256, repeats >= 1 and warmup >= 0")
     machine = {"machine": machine_description(device), "torch_version": torch.__version__,
                "torch_threads": torch.get_num_threads()}  # fmt: skip
@@ -223,12 +224,12 @@ def run(args: argparse.Namespace) -> int:
                 inputs["means"], inputs["quats"], inputs["scales"], inputs["opacities"], inputs["colors"],
                 inputs["viewmat"], inputs["K"], width, height, backend=args.backend, tile_size=tile_size,
             )  # fmt: skip
-            info.update(backend=out.info["backend"], n_pairs=out.info.get("n_pairs"))
+            info.update(backend=out.info["backend"], n_pairs=out.info.get("n_pairs"), tile=out.info.get("tile_size"))
             return out.rgb, out.alpha, out.depth
 
         timing = time_case(render, scene, device, repeats, warmup)
         record = {"backend": info["backend"], "device": device.type, "width": width, "height": height,
-                  "n_gaussians": n, "tile_size": tile_size if info["backend"] == "torch" else 16}  # fmt: skip
+                  "n_gaussians": n, "tile_size": info["tile"] or 16}  # fmt: skip
         report(record | timing | {"n_tile_pairs": info["n_pairs"]})
         return timing
 

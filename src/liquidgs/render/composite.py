@@ -16,9 +16,10 @@ import torch
 from torch import Tensor
 
 from liquidgs.render.projection import ALPHA_THRESHOLD
-from liquidgs.render.tiles import TileBins, TileChunk
+from liquidgs.render.tiles import TileBins, TileChunk, plan_chunks
 
 MAX_ALPHA = 0.999
+DEFAULT_CHUNK_ELEMENTS = 1 << 20
 LOG_MIN_TRANSMITTANCE = math.log(1e-4)
 
 
@@ -114,16 +115,16 @@ def _image_to_tiles(image: Tensor, bins: TileBins) -> Tensor:
 
 class _CompositeTiles(torch.autograd.Function):
     @staticmethod
-    def forward(ctx, means2d, conics, opacities, features, bins: TileBins, width: int, height: int, absgrad):
+    def forward(ctx, means2d, conics, opacities, features, bins: TileBins, chunks, width: int, height: int, absgrad):
         pixels = bins.tile_size**2
         out_features = features.new_zeros(bins.n_tiles, pixels, features.shape[1])
         out_transmittance = features.new_ones(bins.n_tiles, pixels)
-        for chunk in bins.chunks:
+        for chunk in chunks:
             frags = _evaluate_chunk(bins, chunk, means2d, conics, opacities)
             pair_features = features[frags.gaussian_ids]
             out_features[chunk.tile_ids] = torch.bmm(frags.weights.transpose(1, 2), pair_features)
             out_transmittance[chunk.tile_ids] = frags.final_transmittance
-        ctx.bins, ctx.absgrad = bins, absgrad
+        ctx.bins, ctx.chunks, ctx.absgrad = bins, chunks, absgrad
         ctx.save_for_backward(means2d, conics, opacities, features)
         return (
             _tiles_to_image(out_features, bins, width, height),
@@ -142,7 +143,7 @@ class _CompositeTiles(torch.autograd.Function):
         grad_conics = torch.zeros_like(conics)
         grad_opacities = torch.zeros_like(opacities)
         grad_features = torch.zeros_like(features)
-        for chunk in bins.chunks:
+        for chunk in ctx.chunks:
             frags = _evaluate_chunk(bins, chunk, means2d, conics, opacities)
             ids = frags.gaussian_ids.reshape(-1)
             grad_out = grad_features_tiles[chunk.tile_ids]  # [T, S, F]
@@ -183,7 +184,7 @@ class _CompositeTiles(torch.autograd.Function):
         if abs_grad_means2d is not None:
             # gsplat's convention: the summed per-pixel |dL/dmeans2d| lands on means2d.absgrad.
             means2d.absgrad = abs_grad_means2d
-        return grad_means2d, grad_conics, grad_opacities, grad_features, None, None, None, None
+        return grad_means2d, grad_conics, grad_opacities, grad_features, None, None, None, None, None
 
 
 def composite_tiles(
@@ -195,13 +196,16 @@ def composite_tiles(
     width: int,
     height: int,
     absgrad: bool = False,
+    chunk_elements: int = DEFAULT_CHUNK_ELEMENTS,
 ) -> tuple[Tensor, Tensor]:
     """Composite per-Gaussian features [N, F] front to back into ([H, W, F] sum of w * f, [H, W, 1] alpha).
 
     With absgrad, backward also sets means2d.absgrad to the per-Gaussian sum over pixels of the
-    absolute per-pixel gradient (the AbsGS definition gsplat uses).
+    absolute per-pixel gradient (the AbsGS definition gsplat uses). chunk_elements bounds the
+    fragments (tiles x pairs x pixels) evaluated at once, and so peak memory in both passes.
     """
+    chunks = plan_chunks(bins.tile_counts, bins.tile_size**2, chunk_elements)
     features_image, alpha_image = _CompositeTiles.apply(
-        means2d, conics, opacities, features, bins, width, height, absgrad
+        means2d, conics, opacities, features, bins, chunks, width, height, absgrad
     )
     return features_image, alpha_image.unsqueeze(-1)

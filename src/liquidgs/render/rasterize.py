@@ -10,19 +10,17 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from liquidgs.render import gsplat_backend
-from liquidgs.render.composite import composite_tiles
+from liquidgs.render import cpu_backend, gsplat_backend
+from liquidgs.render.composite import DEFAULT_CHUNK_ELEMENTS, composite_tiles
 from liquidgs.render.projection import project_gaussians
 from liquidgs.render.sh import MAX_SH_DEGREE, eval_sh, num_sh_bases
 from liquidgs.render.tiles import bin_gaussians
 
 logger = logging.getLogger(__name__)
 
-BACKENDS = ("auto", "torch", "gsplat")
-# Fastest on CPU for small trained-scene Gaussians (a few pixels across); see benchmarks/raster_cpu.json.
-DEFAULT_TILE_SIZE = 4
-# Fragments (tiles x pairs x pixels) evaluated at once; bounds peak memory in forward and backward.
-DEFAULT_CHUNK_ELEMENTS = 1 << 20
+BACKENDS = ("auto", "torch", "cpu", "gsplat")
+# Fastest per backend for small trained-scene Gaussians (a few pixels across); see benchmarks/raster_cpu.jsonl.
+DEFAULT_TILE_SIZES = {"torch": 4, "cpu": 4}
 # gsplat's "ED" depth divides by alpha clamped at this value.
 DEPTH_ALPHA_FLOOR = 1e-10
 
@@ -81,14 +79,22 @@ def _validate(
         )
 
 
-def _resolve_backend(backend: str, device: torch.device) -> str:
-    if backend == "gsplat":
-        reason = gsplat_backend.unavailable_reason(device)
+def _resolve_backend(backend: str, means: Tensor) -> str:
+    device = means.device
+    if backend in ("gsplat", "cpu"):
+        reason = (gsplat_backend.unavailable_reason(device) if backend == "gsplat"
+                  else cpu_backend.unavailable_reason(means))  # fmt: skip
         if reason is not None:
-            raise ValueError(f"backend='gsplat' is unavailable: {reason}; use backend='torch' or 'auto'")
-        chosen = "gsplat"
+            raise ValueError(f"backend={backend!r} is unavailable: {reason}; use backend='torch' or 'auto'")
+        chosen = backend
     elif backend == "auto":
-        chosen = "gsplat" if gsplat_backend.unavailable_reason(device) is None else "torch"
+        if gsplat_backend.unavailable_reason(device) is None:
+            chosen = "gsplat"
+        elif device.type == "cpu" and (reason := cpu_backend.unavailable_reason(means)) is not None:
+            cpu_backend.report_fallback(reason)
+            chosen = "torch"
+        else:
+            chosen = "cpu" if device.type == "cpu" else "torch"
     else:
         chosen = "torch"
     if backend == "auto" and chosen not in _logged_backends:
@@ -124,7 +130,7 @@ def rasterize(
     far_plane: float = 1e10,
     eps2d: float = 0.3,
     absgrad: bool = False,
-    tile_size: int = DEFAULT_TILE_SIZE,
+    tile_size: int | None = None,
     chunk_elements: int = DEFAULT_CHUNK_ELEMENTS,
 ) -> RenderOutput:
     """Render N 3D Gaussians into one pinhole view, following gsplat 1.5.3's conventions.
@@ -133,8 +139,10 @@ def rasterize(
         means [N,3], quats [N,4] (wxyz, any norm), scales [N,3] (std-devs), opacities [N] in [0,1].
         colors: RGB [N,3] when sh_degree is None, else SH coefficients [N,K,3], K >= (sh_degree+1)^2.
         viewmat [4,4]: world-to-camera, OpenCV axes (x right, y down, z forward). K [3,3]: intrinsics.
-        background [3] or None (black). backend: "auto" (gsplat on CUDA when its kernels run, else
-        torch), "torch" or "gsplat". tile_size and chunk_elements tune the torch backend only.
+        background [3] or None (black). backend: "auto" (gsplat on CUDA when its kernels run; on the
+        CPU the compiled kernel where it builds, else torch), "torch" (the portable reference),
+        "cpu" or "gsplat". tile_size (default per backend, DEFAULT_TILE_SIZES) tunes torch and cpu;
+        chunk_elements bounds the torch backend's memory.
 
     Returns RenderOutput with rgb [H,W,3], alpha [H,W,1], depth [H,W,1] (expected depth, divided by
     alpha clamped at 1e-10) and info: means2d [N,2] (its .grad is dL/dmeans2d after backward, and
@@ -143,9 +151,9 @@ def rasterize(
     [N,3], width, height, n_cameras (1), backend.
     """
     _validate(means, quats, scales, opacities, colors, viewmat, K, width, height, sh_degree, background, backend)
-    if isinstance(tile_size, bool) or not isinstance(tile_size, int) or tile_size < 1:
+    if tile_size is not None and (isinstance(tile_size, bool) or not isinstance(tile_size, int) or tile_size < 1):
         raise ValueError(f"tile_size must be an integer >= 1, got {tile_size!r}")
-    chosen = _resolve_backend(backend, means.device)
+    chosen = _resolve_backend(backend, means)
     viewmat = viewmat.to(dtype=means.dtype, device=means.device)
     K = K.to(dtype=means.dtype, device=means.device)
     if background is None:
@@ -165,10 +173,18 @@ def rasterize(
         means2d.retain_grad()
     rgb_colors = view_colors(colors, sh_degree, means, viewmat)
     features = torch.cat([rgb_colors, projection.depths[:, None]], dim=1)
-    bins = bin_gaussians(means2d, projection.radii_xy, projection.depths, width, height, tile_size, chunk_elements)
-    features_image, alpha = composite_tiles(
-        means2d, projection.conics, opacities, features, bins, width, height, absgrad
-    )
+    if tile_size is None:
+        tile_size = DEFAULT_TILE_SIZES[chosen]
+    binning = cpu_backend.bin_gaussians_cpu if chosen == "cpu" else bin_gaussians
+    bins = binning(means2d, projection.radii_xy, projection.depths, width, height, tile_size)
+    if chosen == "cpu":
+        features_image, alpha = cpu_backend.composite_tiles_cpu(
+            means2d, projection.conics, opacities, features, bins, width, height, absgrad
+        )
+    else:
+        features_image, alpha = composite_tiles(
+            means2d, projection.conics, opacities, features, bins, width, height, absgrad, chunk_elements
+        )
     rgb = features_image[..., :3] + (1.0 - alpha) * background
     depth = features_image[..., 3:] / alpha.clamp_min(DEPTH_ALPHA_FLOOR)
     radii_xy = projection.radii_xy
@@ -182,7 +198,7 @@ def rasterize(
         "width": width,
         "height": height,
         "n_cameras": 1,
-        "backend": "torch",
+        "backend": chosen,
         "tile_size": tile_size,
         "n_pairs": bins.n_pairs,
     }

@@ -27,7 +27,6 @@ class TileBins:
     gaussian_ids: Tensor  # [n_pairs] int64
     tile_starts: Tensor  # [n_tiles] int64, offset of each tile's first pair
     tile_counts: Tensor  # [n_tiles] int64
-    chunks: list[TileChunk]
 
     @property
     def n_tiles(self) -> int:
@@ -38,6 +37,33 @@ class TileBins:
         return int(self.gaussian_ids.numel())
 
 
+@dataclass
+class TileBoxes:
+    """Visible Gaussians (radii > 0) front to back, with the tile range their bounding box touches."""
+
+    tiles_x: int
+    tiles_y: int
+    depth_order: Tensor  # [V] int64 Gaussian ids, nearest first (ties: lower id first)
+    tile_min: Tensor  # [V, 2] int64 (x, y), inclusive
+    tile_max: Tensor  # [V, 2] int64 (x, y), exclusive
+
+
+@torch.no_grad()
+def tile_boxes(means2d: Tensor, radii_xy: Tensor, depths: Tensor, width: int, height: int, tile_size: int) -> TileBoxes:
+    """The tiles each visible Gaussian's bounding box touches, as gsplat's isect_tiles finds them."""
+    device = means2d.device
+    tiles_x = math.ceil(width / tile_size)
+    tiles_y = math.ceil(height / tile_size)
+    visible_ids = torch.nonzero(radii_xy[:, 0] > 0).squeeze(1)
+    depth_order = visible_ids[torch.argsort(depths.detach()[visible_ids], stable=True)]
+    centre = means2d.detach()[depth_order] / tile_size
+    tile_radius = radii_xy[depth_order].to(centre.dtype) / tile_size
+    upper = torch.tensor([tiles_x, tiles_y], device=device)
+    tile_min = torch.minimum(torch.floor(centre - tile_radius).long().clamp_min(0), upper)
+    tile_max = torch.minimum(torch.ceil(centre + tile_radius).long().clamp_min(0), upper)
+    return TileBoxes(tiles_x, tiles_y, depth_order, tile_min, tile_max)
+
+
 @torch.no_grad()
 def bin_gaussians(
     means2d: Tensor,
@@ -46,41 +72,28 @@ def bin_gaussians(
     width: int,
     height: int,
     tile_size: int,
-    chunk_elements: int,
 ) -> TileBins:
     """Bin visible Gaussians (radii > 0) to the tiles their bounding box touches, as gsplat does."""
+    boxes = tile_boxes(means2d, radii_xy, depths, width, height, tile_size)
     device = means2d.device
-    tiles_x = math.ceil(width / tile_size)
-    tiles_y = math.ceil(height / tile_size)
-    visible_ids = torch.nonzero(radii_xy[:, 0] > 0).squeeze(1)
-    centre = means2d.detach()[visible_ids] / tile_size
-    tile_radius = radii_xy[visible_ids].to(centre.dtype) / tile_size
-    upper = torch.tensor([tiles_x, tiles_y], device=device)
-    tile_min = torch.minimum(torch.floor(centre - tile_radius).long().clamp_min(0), upper)
-    tile_max = torch.minimum(torch.ceil(centre + tile_radius).long().clamp_min(0), upper)
-    span = tile_max - tile_min
+    span = boxes.tile_max - boxes.tile_min
     pairs_per_gaussian = span[:, 0] * span[:, 1]
+    n_visible = boxes.depth_order.numel()
 
-    pair_owner = torch.repeat_interleave(torch.arange(visible_ids.numel(), device=device), pairs_per_gaussian)
+    # pair_owner is a position in depth order, so sorting pairs by (tile, owner) keeps each tile front to back.
+    pair_owner = torch.repeat_interleave(torch.arange(n_visible, device=device), pairs_per_gaussian)
     first_pair = torch.cumsum(pairs_per_gaussian, 0) - pairs_per_gaussian
     local = torch.arange(pair_owner.numel(), device=device) - first_pair[pair_owner]
     owner_span_x = span[pair_owner, 0]
-    tile_x = tile_min[pair_owner, 0] + local % owner_span_x
-    tile_y = tile_min[pair_owner, 1] + local // owner_span_x
-    tile_of_pair = tile_y * tiles_x + tile_x
+    tile_x = boxes.tile_min[pair_owner, 0] + local % owner_span_x
+    tile_y = boxes.tile_min[pair_owner, 1] + local // owner_span_x
+    tile_of_pair = tile_y * boxes.tiles_x + tile_x
 
-    depth_rank = torch.empty_like(visible_ids)
-    depth_rank[torch.argsort(depths.detach()[visible_ids], stable=True)] = torch.arange(
-        visible_ids.numel(), device=device
-    )
-    sort_key = tile_of_pair * max(visible_ids.numel(), 1) + depth_rank[pair_owner]
-    order = torch.argsort(sort_key)
-    gaussian_ids = visible_ids[pair_owner[order]]
-
-    tile_counts = torch.bincount(tile_of_pair, minlength=tiles_x * tiles_y)
+    order = torch.argsort(tile_of_pair * max(n_visible, 1) + pair_owner)
+    gaussian_ids = boxes.depth_order[pair_owner[order]]
+    tile_counts = torch.bincount(tile_of_pair, minlength=boxes.tiles_x * boxes.tiles_y)
     tile_starts = torch.cumsum(tile_counts, 0) - tile_counts
-    chunks = plan_chunks(tile_counts, tile_size * tile_size, chunk_elements)
-    return TileBins(tile_size, tiles_x, tiles_y, gaussian_ids, tile_starts, tile_counts, chunks)
+    return TileBins(tile_size, boxes.tiles_x, boxes.tiles_y, gaussian_ids, tile_starts, tile_counts)
 
 
 def plan_chunks(tile_counts: Tensor, pixels_per_tile: int, chunk_elements: int, growth: float = 2.0) -> list[TileChunk]:

@@ -36,9 +36,8 @@ def deform(
     act = activate(params)
     if field is None:
         return Deformed(act["means"], act["quats"], act["scales"], act["opacities"], act["colors"])
-    n = params["means"].shape[0]
-    t = torch.as_tensor(time, dtype=params["means"].dtype, device=params["means"].device)
-    t = t.reshape(-1, 1).expand(n, 1) + time_noise
+    # One time for every Gaussian stays a [1, 1] column: the field encodes it once.
+    t = torch.as_tensor(time, dtype=params["means"].dtype, device=params["means"].device).reshape(-1, 1) + time_noise
     d_xyz, d_rotation, d_scaling = field(params["means"], t)
     return Deformed(
         means=act["means"] + d_xyz,

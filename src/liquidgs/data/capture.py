@@ -1,0 +1,265 @@
+"""Your own capture -> a scene in the Nerfies layout: frames, COLMAP cameras, splits, times, points.
+
+Everything is built in a hidden temporary folder beside the output (.<name>.partial-*) and moved
+into place by one rename at the end, so a failure or an interrupt leaves no folder that looks
+like a scene.
+"""
+
+from __future__ import annotations
+
+import os
+import secrets
+import shutil
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+from PIL import Image
+
+from liquidgs.atomic import write_json_atomic
+from liquidgs.data.colmap import Log, SolveOptions, check_model, solve_cameras
+from liquidgs.data.nerfies import (
+    CAMERA_FOLDER,
+    DATASET_FILE,
+    METADATA_FILE,
+    POINTS_FILE,
+    SCENE_FILE,
+    NerfiesCamera,
+    camera_json,
+    camera_path,
+    rgb_folder,
+)
+from liquidgs.data.video import ExtractedFrame, collect_image_frames, crop_to_multiple, extract_video_frames
+from liquidgs.errors import ConfigError, DataError
+
+CAPTURE_FILE = "capture.json"  # how the scene was made: source, registered and dropped frames, errors
+# COLMAP's model the cameras come from (every keypoint, track and camera), for COLMAP's own tools.
+SPARSE_FOLDER = "colmap/sparse"
+SCALES = (1, 2, 4)  # rgb/<k>x folders written
+# scene.json's scale puts the median depth of what the cameras see at this distance: the D-NeRF
+# cameras' distance from their object, the scale the training presets are tuned for (the fields'
+# deformation and the means' learning rate are in absolute units).
+VIEWING_DISTANCE = 4.0
+
+
+@dataclass
+class CaptureSettings:
+    fps: float | None = None
+    frames: int | None = None
+    max_size: int = 800
+    holdout_every: int = 8
+    mask_dir: Path | None = None
+    solve: SolveOptions = field(default_factory=SolveOptions)
+
+
+@dataclass
+class CaptureSummary:
+    out: str
+    source: str
+    frames_total: int
+    frames_registered: int
+    dropped: list[dict[str, str]]
+    """Frames COLMAP could not register: their id and where they came from."""
+    train: int
+    test: int
+    holdout_every: int
+    mean_reprojection_error_px: float
+    points: int
+    image_size: tuple[int, int]
+    matcher: str
+    masked: bool
+    seconds: dict[str, float]
+
+
+def capture_scene(source: Path, out: Path, settings: CaptureSettings, log: Log, *, video: bool) -> CaptureSummary:
+    """Build the scene of `source` (a video, or a folder of images when video is False) at `out`."""
+    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+        raise ConfigError(f"--out {out}: already exists and is not an empty folder; choose a new folder")
+    if settings.holdout_every < 2:
+        raise ConfigError(f"--holdout-every must be at least 2, got {settings.holdout_every}")
+    if settings.mask_dir is not None and not settings.mask_dir.is_dir():
+        raise DataError(settings.mask_dir, "--mask-dynamic: mask folder not found")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    building = out.parent / f".{out.name}.partial-{secrets.token_hex(4)}"
+    building.mkdir()  # not mkdtemp: its 0700 would stay on the scene folder
+    try:
+        summary = _build(source, building, settings, log, video=video)
+        summary.out = str(out)
+        write_json_atomic(building / CAPTURE_FILE, asdict(summary))
+        if out.exists():
+            out.rmdir()  # empty, checked above; rename needs the name free
+        os.rename(building, out)
+    except BaseException:
+        shutil.rmtree(building, ignore_errors=True)
+        raise
+    return summary
+
+
+def _build(source: Path, scene: Path, settings: CaptureSettings, log: Log, *, video: bool) -> CaptureSummary:
+    seconds: dict[str, float] = {}
+    work = scene / ".work"
+    frames_dir = work / "frames"
+    frames_dir.mkdir(parents=True)
+
+    started = time.perf_counter()
+    if video:
+        frames = extract_video_frames(
+            source, frames_dir, fps=settings.fps, frames=settings.frames, max_size=settings.max_size, log=log
+        )
+    else:
+        frames = collect_image_frames(source, frames_dir, max_size=settings.max_size, log=log)
+    if len(frames) < 2:
+        raise DataError(source, f"gives {len(frames)} frame; a scene needs at least 2")
+    seconds["extraction"] = time.perf_counter() - started
+
+    mask_dir = None
+    if settings.mask_dir is not None:
+        mask_dir = work / "masks"
+        _colmap_masks(settings.mask_dir, frames, mask_dir, log)
+
+    started = time.perf_counter()
+    names = [f"{frame.id}.png" for frame in frames]
+    model = solve_cameras(frames_dir, names, work, settings.solve, log, mask_dir=mask_dir)
+    check_model(model, len(frames))
+    seconds["colmap"] = time.perf_counter() - started
+
+    started = time.perf_counter()
+    summary = _write_scene(scene, frames, frames_dir, model, settings, log)
+    shutil.rmtree(work)
+    seconds["writing"] = time.perf_counter() - started
+    summary.source = str(source)
+    summary.seconds = {stage: round(value, 2) for stage, value in seconds.items()}
+    return summary
+
+
+def _median_depth(model) -> float:
+    """The median depth of every observed point in the camera that observes it."""
+    poses = {image_id: image.cam_from_world() for image_id, image in model.images.items() if image.has_pose}
+    # Depth = row 3 of the world->camera transform applied to the point.
+    depth_rows = {i: np.append(pose.rotation.matrix()[2], pose.translation[2]) for i, pose in poses.items()}
+    depths = [
+        float(depth_rows[element.image_id] @ np.append(point.xyz, 1.0))
+        for point in model.points3D.values()
+        for element in point.track.elements
+    ]
+    return float(np.median(depths))
+
+
+def _colmap_masks(user_dir: Path, frames: list[ExtractedFrame], mask_dir: Path, log: Log) -> None:
+    """User masks (nonzero = moving) -> COLMAP masks (<image name>.png, zero = no features)."""
+    mask_dir.mkdir()
+    dynamic_share = []
+    for frame in frames:
+        path = user_dir / frame.mask_name
+        if not path.is_file():
+            raise DataError(path, f"--mask-dynamic: no mask for {frame.source} (one per frame, named {path.name})")
+        try:
+            with Image.open(path) as handle:
+                mask = handle.convert("L").resize(frame.scaled_size, Image.Resampling.NEAREST)
+        except (OSError, SyntaxError, ValueError, Image.DecompressionBombError) as err:
+            raise DataError(path, f"--mask-dynamic: cannot decode mask ({err})") from None
+        dynamic = crop_to_multiple(np.asarray(mask)) > 0
+        dynamic_share.append(dynamic.mean())
+        Image.fromarray(np.where(dynamic, 0, 255).astype(np.uint8)).save(mask_dir / f"{frame.id}.png.png")
+    log(
+        f"masks: {len(frames)} frames, {100 * np.mean(dynamic_share):.1f}% of pixels marked moving on average "
+        "(no features there)"
+    )
+
+
+def _write_scene(
+    scene: Path,
+    frames: list[ExtractedFrame],
+    frames_dir: Path,
+    model,
+    settings: CaptureSettings,
+    log: Log,
+) -> CaptureSummary:
+    by_name = {image.name: image for image in model.images.values() if image.has_pose}
+    registered = [frame for frame in frames if f"{frame.id}.png" in by_name]
+    dropped = [{"id": frame.id, "source": frame.source} for frame in frames if f"{frame.id}.png" not in by_name]
+    if dropped:
+        shown = ", ".join(item["source"] for item in dropped[:20]) + (" ..." if len(dropped) > 20 else "")
+        log(f"writing: {len(dropped)} frame(s) COLMAP could not register are dropped: {shown}")
+
+    for factor in SCALES:
+        rgb_folder(scene, factor).mkdir(parents=True)
+    (scene / CAMERA_FOLDER).mkdir()
+    for frame in registered:
+        image = by_name[f"{frame.id}.png"]
+        camera = model.cameras[image.camera_id]
+        focal, cx, cy, k1 = (float(v) for v in camera.params)  # SIMPLE_RADIAL: f, cx, cy, k
+        pose = image.cam_from_world()
+        rotation = np.asarray(pose.rotation.matrix(), dtype=np.float64)
+        position = -rotation.T @ np.asarray(pose.translation, dtype=np.float64)
+        nerfies_camera = NerfiesCamera(
+            rotation=rotation,
+            position=position,
+            focal_length=focal,
+            pixel_aspect_ratio=1.0,
+            principal_point=np.array([cx, cy]),  # COLMAP's pixel centres are at +0.5, as ours
+            skew=0.0,
+            image_size=(camera.width, camera.height),
+            distortion=np.array([k1, 0.0, 0.0, 0.0, 0.0]),
+        )
+        write_json_atomic(camera_path(scene, frame.id), camera_json(nerfies_camera))
+        source = frames_dir / f"{frame.id}.png"
+        with Image.open(source) as full:
+            for factor in SCALES[1:]:
+                full.reduce(factor).save(rgb_folder(scene, factor) / source.name, format="PNG")
+        os.replace(source, rgb_folder(scene, 1) / source.name)
+
+    ids = [frame.id for frame in registered]
+    held_out = settings.holdout_every // 2
+    test_ids = [image_id for n, image_id in enumerate(ids) if n % settings.holdout_every == held_out]
+    held_out_ids = set(test_ids)
+    train_ids = [image_id for image_id in ids if image_id not in held_out_ids]
+    if not test_ids:
+        raise ConfigError(
+            f"--holdout-every {settings.holdout_every} holds out none of the {len(ids)} registered frames; "
+            "choose a smaller value"
+        )
+    write_json_atomic(
+        scene / DATASET_FILE,
+        {"count": len(ids), "num_exemplars": len(train_ids), "ids": ids, "train_ids": train_ids, "val_ids": test_ids},
+    )
+    write_json_atomic(
+        scene / METADATA_FILE,
+        {
+            frame.id: {"time_id": frame.time_id, "warp_id": n, "appearance_id": n, "camera_id": 0}
+            for n, frame in enumerate(registered)
+        },
+    )
+
+    xyz = np.array([point.xyz for point in model.points3D.values()], dtype=np.float64).reshape(-1, 3)
+    colors = np.array([point.color for point in model.points3D.values()], dtype=np.float64).reshape(-1, 3)
+    center = np.median(xyz, axis=0)
+    scale = VIEWING_DISTANCE / max(_median_depth(model), 1e-9)
+    write_json_atomic(scene / SCENE_FILE, {"center": center.tolist(), "scale": scale})
+    np.save(scene / POINTS_FILE, np.concatenate([xyz, colors / 255.0], axis=1).astype(np.float32))
+    (scene / SPARSE_FOLDER).mkdir(parents=True)
+    model.write(scene / SPARSE_FOLDER)
+
+    first = model.cameras[by_name[f"{registered[0].id}.png"].camera_id]
+    error = float(model.compute_mean_reprojection_error())
+    log(
+        f"writing: {len(ids)} frames ({len(train_ids)} train, {len(test_ids)} test: every "
+        f"{settings.holdout_every}th from the {held_out + 1}th), rgb/1x 2x 4x, {len(xyz)} points"
+    )
+    return CaptureSummary(
+        out="",
+        source="",
+        frames_total=len(frames),
+        frames_registered=len(registered),
+        dropped=dropped,
+        train=len(train_ids),
+        test=len(test_ids),
+        holdout_every=settings.holdout_every,
+        mean_reprojection_error_px=round(error, 4),
+        points=len(xyz),
+        image_size=(first.width, first.height),
+        matcher=settings.solve.matcher,
+        masked=settings.mask_dir is not None,
+        seconds={},
+    )

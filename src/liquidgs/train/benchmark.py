@@ -1,0 +1,126 @@
+"""`liquidgs bench train`: milliseconds per training iteration, split into its phases.
+
+The real trainer runs --from-step untimed steps (so densification has grown the Gaussians to a
+trained scene's count), then --steps timed ones; each phase (train/phases.py) and the whole
+step are reported as medians over the timed steps, with the Gaussian count, the backend the
+rasteriser used, the machine and the thread count. The built-in puppet scene at 128 px is the
+default; --data takes a D-NeRF or Nerfies folder (with --downscale).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import torch
+
+from liquidgs.data import DEFAULT_SYNTHETIC_SCENE, generate_synthetic
+from liquidgs.errors import ConfigError
+from liquidgs.render.benchmark import machine_description
+from liquidgs.train.config import FIELDS, PRESETS, preset_config, validate
+from liquidgs.train.model import deform
+from liquidgs.train.phases import PHASES, PhaseClock
+from liquidgs.train.trainer import Trainer
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="liquidgs bench train", description=__doc__.splitlines()[0])
+    parser.add_argument("--json", action="store_true", help="print one JSON object (default: a table)")
+    parser.add_argument("--data", type=Path, help=f"scene folder (default: the built-in {DEFAULT_SYNTHETIC_SCENE})")
+    parser.add_argument("--size", type=int, default=128, help="built-in scene's image size")
+    parser.add_argument("--downscale", type=int, help="image downscale of --data")
+    parser.add_argument("--preset", default="tiny", choices=PRESETS)
+    parser.add_argument("--field", default="mlp", choices=FIELDS)
+    parser.add_argument("--backend", default="auto", choices=("auto", "torch", "cpu", "gsplat"))
+    parser.add_argument("--device", default="auto")
+    parser.add_argument("--from-step", type=int, default=700, help="untimed steps first (default 700)")
+    parser.add_argument("--steps", type=int, default=300, help="timed steps (default 300)")
+    parser.add_argument("--threads", type=int, default=0, help="torch intra-op threads (0: torch's default)")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--output", type=Path, help="also append the JSON object as a line to this file")
+    return parser
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.steps < 1 or args.from_step < 0 or args.threads < 0 or args.size < 8:
+        raise ConfigError("bench train: need --steps >= 1, --from-step >= 0, --threads >= 0 and --size >= 8")
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    with tempfile.TemporaryDirectory(prefix="liquidgs-bench-") as scratch:
+        data = args.data
+        if data is None:
+            data = generate_synthetic(DEFAULT_SYNTHETIC_SCENE, Path(scratch) / "scene", size=args.size) / "dnerf"
+        record = measure(args, data, Path(scratch) / "run")
+    if args.json:
+        print(json.dumps(record), flush=True)
+    else:
+        print(f"{record['scene']} {record['resolution'][0]}x{record['resolution'][1]}, {record['field']}, "
+              f"{record['backend']} backend, {record['n_gaussians']['median']} Gaussians: "
+              f"{record['ms_per_iteration']} ms per iteration")  # fmt: skip
+        for phase, ms in record["phases_ms"].items():
+            print(f"  {phase:<16} {ms:8.2f} ms")
+    if args.output is not None:
+        args.output.parent.mkdir(parents=True, exist_ok=True)
+        with args.output.open("a") as file:
+            file.write(json.dumps(record) + "\n")
+    return 0
+
+
+def measure(args: argparse.Namespace, data: Path, run_dir: Path) -> dict:
+    cfg = preset_config(args.preset, data)
+    cfg.field = args.field
+    cfg.seed = args.seed
+    cfg.device = args.device
+    cfg.backend = args.backend
+    cfg.downscale = args.downscale
+    cfg.iterations = args.from_step + args.steps
+    cfg.eval.start = cfg.iterations + 1  # no evaluation inside the timed steps
+    validate(cfg)
+    run_dir.mkdir(parents=True)
+    trainer = Trainer(cfg, run_dir)
+    for step in range(1, args.from_step + 1):
+        trainer.train_step(step)
+    clock = trainer.clock = PhaseClock(trainer.device)
+    totals, phases, counts = [], {phase: [] for phase in PHASES}, []
+    for step in range(args.from_step + 1, cfg.iterations + 1):
+        started = time.perf_counter()
+        stats = trainer.train_step(step)
+        totals.append(time.perf_counter() - started)
+        for phase in PHASES:
+            phases[phase].append(clock.times[phase])
+        counts.append(stats["n_gaussians"])
+    frame = trainer.dataset.train[0]
+    return {
+        "benchmark": "train",
+        "scene": DEFAULT_SYNTHETIC_SCENE if args.data is None else trainer.dataset.scene_name,
+        "resolution": [frame.width, frame.height],
+        "preset": args.preset,
+        "field": args.field,
+        "backend": _backend_used(trainer, frame),
+        "timed_steps": [args.from_step + 1, cfg.iterations],
+        "n_gaussians": {"min": min(counts), "median": int(statistics.median(counts)), "max": max(counts)},
+        "ms_per_iteration": round(1000 * statistics.median(totals), 2),
+        "phases_ms": {phase: round(1000 * statistics.median(values), 3) for phase, values in phases.items()},
+        "device": trainer.device.type,
+        "machine": machine_description(trainer.device),
+        "torch_version": torch.__version__,
+        "torch_threads": torch.get_num_threads(),
+    }
+
+
+@torch.no_grad()
+def _backend_used(trainer: Trainer, frame) -> str:
+    return trainer._render(deform(trainer.params, None, frame.time), frame).info["backend"]
+
+
+def main(argv: list[str]) -> int:
+    return run(build_parser().parse_args(argv))
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

@@ -1,0 +1,140 @@
+"""The compiled CPU rasteriser held against the torch backend (the reference): images, bins, gradients."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+import pytest
+import torch
+
+from liquidgs.render import cpu_backend
+from liquidgs.render.projection import project_gaussians
+from liquidgs.render.tiles import bin_gaussians
+from test_render import PARAMETERS, gradients, random_scene, render
+
+pytestmark = pytest.mark.skipif(
+    cpu_backend.unavailable_reason() is not None,
+    reason=f"compiled CPU rasteriser unavailable: {cpu_backend.unavailable_reason()}",
+)
+
+
+def images(scene, backend, **kwargs):
+    out = render(scene, backend=backend, **kwargs)
+    return out.rgb, out.alpha, out.depth
+
+
+@pytest.mark.parametrize(
+    ("seed", "n", "width", "height", "sh_degree", "tile_size"),
+    [(0, 150, 23, 17, None, 4), (1, 400, 64, 48, 3, 8), (2, 300, 37, 41, 1, 16), (3, 80, 5, 3, None, 4)],
+)
+def test_forward_and_gradients_match_the_torch_backend_float64(seed, n, width, height, sh_degree, tile_size):
+    scene = random_scene(n, width=width, height=height, seed=seed, dtype=torch.float64, sh_degree=sh_degree)
+    background = torch.tensor([0.2, 0.5, 0.9], dtype=torch.float64)
+    ours = images(scene, "cpu", background=background, tile_size=tile_size)
+    reference = images(scene, "torch", background=background)
+    assert reference[1].max() > 0.9, "the scene should contain saturated pixels"
+    for got, want in zip(ours, reference):
+        torch.testing.assert_close(got, want, rtol=1e-12, atol=1e-12)
+    ours_grad = gradients(scene, lambda s, bg: images(s, "cpu", background=bg, tile_size=tile_size))
+    reference_grad = gradients(scene, lambda s, bg: images(s, "torch", background=bg))
+    for key, grad in reference_grad.items():
+        assert grad.abs().max() > 0, key
+        torch.testing.assert_close(ours_grad[key], grad, rtol=1e-10, atol=1e-10 * grad.abs().max().item(), msg=key)
+
+
+def test_float32_within_a_stated_tolerance():
+    """float32: the kernel's polynomial exp (about 1 ulp) and its summation order differ from torch's."""
+    scene = random_scene(2000, width=128, height=96, seed=4, scale_range=(0.01, 0.08))
+    ours = images(scene, "cpu")
+    reference = images(scene, "torch")
+    torch.testing.assert_close(ours[0], reference[0], rtol=0, atol=1e-5)
+    torch.testing.assert_close(ours[1], reference[1], rtol=0, atol=1e-5)
+    ours_grad = gradients(scene, lambda s, bg: images(s, "cpu", background=bg))
+    reference_grad = gradients(scene, lambda s, bg: images(s, "torch", background=bg))
+    for key in PARAMETERS:
+        scale = reference_grad[key].abs().max().item()
+        torch.testing.assert_close(ours_grad[key], reference_grad[key], rtol=1e-3, atol=1e-4 * scale, msg=key)
+
+
+def test_absgrad_matches_the_torch_backend():
+    scene = random_scene(300, width=40, height=30, seed=5, dtype=torch.float64)
+    results = {}
+    for backend in ("torch", "cpu"):
+        leaves = {key: scene[key].clone().requires_grad_(True) for key in PARAMETERS}
+        out = render(scene | leaves, backend=backend, absgrad=True)
+        (out.rgb * torch.linspace(-1, 1, out.rgb.numel(), dtype=torch.float64).reshape(out.rgb.shape)).sum().backward()
+        results[backend] = (out.info["means2d"].grad, out.info["means2d"].absgrad)
+    for got, want in zip(results["cpu"], results["torch"]):
+        assert want.abs().max() > 0
+        torch.testing.assert_close(got, want, rtol=1e-10, atol=1e-12)
+
+
+@pytest.mark.parametrize("tile_size", [4, 8, 16])
+def test_counting_sort_bins_equal_the_torch_bins(tile_size):
+    scene = random_scene(500, width=61, height=45, seed=6)
+    projection = project_gaussians(
+        scene["means"], scene["quats"], scene["scales"], scene["opacities"], scene["viewmat"], scene["K"],
+        61, 45, 0.01, 1e10, 0.3,
+    )  # fmt: skip
+    args = (projection.means2d, projection.radii_xy, projection.depths, 61, 45, tile_size)
+    ours, reference = cpu_backend.bin_gaussians_cpu(*args), bin_gaussians(*args)
+    assert reference.n_pairs > 500
+    for name in ("gaussian_ids", "tile_starts", "tile_counts"):
+        assert torch.equal(getattr(ours, name), getattr(reference, name)), name
+
+
+def test_auto_uses_the_compiled_kernel_on_cpu():
+    out = render(random_scene(20), backend="auto")
+    assert out.info["backend"] == "cpu" and out.info["tile_size"] == 4
+
+
+def test_tile_sizes_the_kernel_cannot_take_are_refused():
+    with pytest.raises(ValueError, match="tile sizes 4, 8, ..., 32"):
+        render(random_scene(20), backend="cpu", tile_size=6)
+
+
+def run_python(code: str, **env: str) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, env=os.environ | env, check=False, timeout=120
+    )
+
+
+RENDER_TWICE = """
+import torch
+from liquidgs.render import rasterize
+from liquidgs.render.benchmark import dnerf_like_scene
+s = dnerf_like_scene(50, 16, 16, torch.device("cpu"))
+for _ in range(2):
+    out = rasterize(s["means"], s["quats"], s["scales"], s["opacities"], s["colors"], s["viewmat"], s["K"], 16, 16)
+print(out.info["backend"])
+"""
+
+
+@pytest.mark.parametrize(
+    ("env", "reason"),
+    [
+        ({"LIQUIDGS_CPU_KERNEL": "0"}, "LIQUIDGS_CPU_KERNEL=0"),
+        ({"CXX": "/nonexistent/c++"}, "cannot run /nonexistent/c++"),
+        ({"CXX": "false"}, "false failed on cpu_composite.cpp"),
+    ],
+)
+def test_without_the_kernel_auto_falls_back_to_torch_with_one_line(tmp_path, env, reason):
+    result = run_python(RENDER_TWICE, LIQUIDGS_CACHE_DIR=str(tmp_path / "cache"), **env)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip() == "torch"
+    lines = [line for line in result.stderr.splitlines() if "compiled CPU rasteriser" in line]
+    assert len(lines) == 1, result.stderr
+    assert reason in lines[0] and lines[0].endswith("using the torch backend")
+
+
+def test_the_kernel_is_built_once_into_the_cache(tmp_path):
+    cache = tmp_path / "cache"
+    for _ in range(2):
+        result = run_python(RENDER_TWICE, LIQUIDGS_CACHE_DIR=str(cache))
+        assert result.returncode == 0 and result.stdout.strip() == "cpu", result.stderr
+        assert result.stderr == ""
+    built = list(cache.glob("cpu_composite-*.so"))
+    assert len(built) == 1
+    assert not [p for p in cache.iterdir() if p not in built], "no temporary left behind"
