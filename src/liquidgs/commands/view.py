@@ -49,8 +49,8 @@ class ViewArgs:
     """Where "Save camera path" writes. Default: FIRST_RUN/camera_paths/camera_path.json."""
     benchmark: int = 0
     """Print the render loop's frame rate over this many frames as JSON and exit (0: serve)."""
-    threads: int = 1
-    """Torch CPU threads for rendering (on the shared 2-core test machine, 2 threads made frames ~8x slower)."""
+    threads: int | None = None
+    """Torch CPU threads for rendering (default: torch's own choice)."""
     device: str = "auto"
 
 
@@ -69,7 +69,7 @@ def check_args(args: ViewArgs) -> None:
             probe.bind((args.host, 0))
     except OSError as err:
         raise ConfigError(f"--host {args.host}: cannot listen there ({err.strerror or err})") from None
-    if args.threads < 1:
+    if args.threads is not None and args.threads < 1:
         raise ConfigError(f"--threads must be at least 1, got {args.threads}")
     if args.benchmark < 0:
         raise ConfigError(f"--benchmark must be 0 or a number of frames, got {args.benchmark}")
@@ -86,7 +86,8 @@ def load_scenes(args: ViewArgs):
 def main(argv: list[str]) -> int:
     args = parse_args(ViewArgs, argv, prog="liquidgs view", description=__doc__)
     check_args(args)
-    torch.set_num_threads(args.threads)
+    if args.threads is not None:
+        torch.set_num_threads(args.threads)
     scenes = load_scenes(args)  # every input error is raised here, before the server starts
 
     from liquidgs.viewer.server import Viewer
