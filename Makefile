@@ -29,6 +29,7 @@ demo: $(BIN)/liquidgs
 	$(BIN)/liquidgs demo --out report
 
 test: $(BIN)/liquidgs $(LPIPS_REF)/installed
+	bash scripts/setup_browser.sh
 	$(BIN)/ruff check src tests
 	$(BIN)/python -m pytest -q tests
 

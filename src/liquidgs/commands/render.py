@@ -8,6 +8,9 @@ With --uncertainty-samples K (the 'sde' field), every test view is also rendered
 with the field's noise on: test/mc_mean holds the per-pixel mean and test/uncertainty the
 per-pixel standard deviation (mean over RGB, scaled so that white = the largest value over
 all views); uncertainty.json lists each view's mean and max standard deviation.
+
+With --camera-path FILE (nerfstudio's camera_path.json with a render_time per camera, as the
+viewer's keyframe recorder writes it) only that path is rendered, to <FILE stem>.mp4.
 """
 
 from __future__ import annotations
@@ -24,6 +27,7 @@ from liquidgs.args import parse_args
 from liquidgs.atomic import write_json_atomic
 from liquidgs.errors import ConfigError
 from liquidgs.media import depth_to_uint8, to_uint8, write_png, write_video
+from liquidgs.render.camera_path import CameraPath, read_camera_path
 from liquidgs.render.cameras import orbit
 from liquidgs.train.run import TrainedRun, load_run
 from liquidgs.train.trainer import load_run_dataset
@@ -45,6 +49,8 @@ class RenderArgs:
     """Frames per second of the videos (1 to 240)."""
     uncertainty_samples: int = 0
     """Monte-Carlo passes per test view for uncertainty maps (0: none; needs the 'sde' field)."""
+    camera_path: Path | None = None
+    """A camera_path.json to render to video instead of the test views, sweep and orbit."""
     device: str = "auto"
 
 
@@ -53,16 +59,9 @@ def monte_carlo_views(run: TrainedRun, frames, samples: int, background, out: Pa
     """Per-pixel mean and standard deviation of `samples` noisy renders of every test view."""
     stats = {}
     for frame in track(frames, description="uncertainty", console=console, disable=console is None):
-        total = torch.zeros(frame.height, frame.width, 3)
-        total_sq = torch.zeros_like(total)
-        for _ in range(samples):
-            sample = run.render(frame.viewmat, frame.K, frame.width, frame.height, frame.time, background, noisy=True)
-            rgb = sample.rgb.cpu()
-            total += rgb
-            total_sq += rgb * rgb
-        mean = total / samples
-        variance = (total_sq - samples * mean * mean).clamp_min(0) / (samples - 1)
-        stats[frame.name] = (mean, variance.sqrt().mean(dim=-1))
+        stats[frame.name] = run.monte_carlo(
+            frame.viewmat, frame.K, frame.width, frame.height, frame.time, background, samples
+        )
     peak = max(float(std.max()) for _, std in stats.values()) or 1.0
     with run.field.noise_on():
         noise_level = run.field.current_lambda()
@@ -72,6 +71,16 @@ def monte_carlo_views(run: TrainedRun, frames, samples: int, background, out: Pa
         write_png(out / "test" / "uncertainty" / f"{name}.png", (std / peak)[..., None].expand(-1, -1, 3))
         summary["views"][name] = {"mean_std": float(std.mean()), "max_std": float(std.max())}
     return write_json_atomic(out / "uncertainty.json", summary)
+
+
+def render_camera_path(run: TrainedRun, camera_path: CameraPath, background, video: Path, console) -> Path:
+    """The camera path's frames, each at its own render_time, as an mp4."""
+    width, height = camera_path.width, camera_path.height
+    images = []
+    for camera in track(camera_path.frames, description="camera path", console=console, disable=console is None):
+        result = run.render(camera.viewmat(), camera.intrinsics(width, height), width, height, camera.time, background)
+        images.append(to_uint8(result.rgb))
+    return write_video(video, images, fps=round(camera_path.fps))
 
 
 def render_run(args: RenderArgs, console: Console | None = None) -> dict[str, Path]:
@@ -84,6 +93,7 @@ def render_run(args: RenderArgs, console: Console | None = None) -> dict[str, Pa
             raise ConfigError(f"{flag} must be between 1 and {MAX_FRAMES}, got {value}")
     if not 1 <= args.fps <= 240:
         raise ConfigError(f"--fps must be between 1 and 240, got {args.fps}")
+    camera_path = read_camera_path(args.camera_path) if args.camera_path is not None else None
     run = load_run(args.run, args.device)
     if console is not None and not run.finished:
         console.print(f"[yellow]note:[/] {args.run}: {run.progress_label}")
@@ -95,6 +105,9 @@ def render_run(args: RenderArgs, console: Console | None = None) -> dict[str, Pa
         raise ConfigError(f"--sweep-camera {args.sweep_camera} is not a test view (0..{len(frames) - 1})")
     out = args.out or args.run / "renders"
     background = torch.tensor(dataset.background, dtype=torch.float32)
+    if camera_path is not None:
+        video = out / f"{args.camera_path.stem}.mp4"
+        return {"camera_path": render_camera_path(run, camera_path, background, video, console)}
     quiet = console is None
 
     for frame in track(frames, description="test views", console=console, disable=quiet):

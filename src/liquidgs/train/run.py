@@ -55,6 +55,19 @@ class TrainedRun:
             sh_degree=self.sh_degree, background=background, backend=self.config.backend,
         )  # fmt: skip
 
+    @torch.no_grad()
+    def monte_carlo(self, viewmat, K, width: int, height: int, time: float, background, samples: int):
+        """Per-pixel mean [H,W,3] and standard deviation (mean over RGB) [H,W] of `samples` noisy renders."""
+        total = torch.zeros(height, width, 3)
+        total_sq = torch.zeros_like(total)
+        for _ in range(samples):
+            rgb = self.render(viewmat, K, width, height, time, background, noisy=True).rgb.cpu()
+            total += rgb
+            total_sq += rgb * rgb
+        mean = total / samples
+        variance = (total_sq - samples * mean * mean).clamp_min(0) / (samples - 1)
+        return mean, variance.sqrt().mean(dim=-1)
+
 
 def load_run(run_dir: str | Path, device: str = "auto") -> TrainedRun:
     run_dir = Path(run_dir)

@@ -1,0 +1,1 @@
+"""The browser viewer (`liquidgs view`): runs and exported PLYs, rendered by `rasterize` on the server."""

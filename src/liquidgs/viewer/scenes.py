@@ -1,0 +1,122 @@
+"""What the viewer can show: trained runs (Gaussians + deformation field) and exported PLYs.
+
+Everything here is loaded and checked before the server starts, so bad input is one line.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from liquidgs.errors import LiquidGSError
+from liquidgs.gaussians import activate, read_ply
+from liquidgs.render import rasterize
+from liquidgs.train.run import TrainedRun, load_run
+from liquidgs.train.trainer import load_run_dataset
+
+
+@dataclass
+class Camera:
+    """A pinhole view in the rasteriser's conventions (world-to-camera, OpenCV axes)."""
+
+    viewmat: torch.Tensor  # [4,4]
+    K: torch.Tensor  # [3,3]
+    width: int
+    height: int
+
+
+class RunScene:
+    """A finished liquidgs run: renders through its deformation field at any time in [0, 1]."""
+
+    def __init__(self, run: TrainedRun, label: str):
+        self.run = run
+        self.label = label
+        self.dataset = load_run_dataset(run.config)
+        self.background = torch.tensor(self.dataset.background, dtype=torch.float32)
+
+    @property
+    def has_noise(self) -> bool:
+        return self.run.config.field == "sde"
+
+    @torch.no_grad()
+    def render(self, camera: Camera, time: float) -> torch.Tensor:
+        return self.run.render(camera.viewmat, camera.K, camera.width, camera.height, time, self.background).rgb
+
+    @torch.no_grad()
+    def uncertainty(self, camera: Camera, time: float, samples: int) -> torch.Tensor:
+        """Per-pixel Monte-Carlo standard deviation [H,W] (the estimate `liquidgs render` writes)."""
+        _, std = self.run.monte_carlo(
+            camera.viewmat, camera.K, camera.width, camera.height, time, self.background, samples
+        )
+        return std
+
+
+class PlyScene:
+    """An exported PLY, or a PLY sequence (a folder of *.ply) spread evenly over time [0, 1]."""
+
+    has_noise = False
+
+    def __init__(self, path: Path, background: torch.Tensor):
+        self.label = path.name
+        self.background = background
+        files = ply_files(path)
+        self.frames = [activate(read_ply(f)) for f in files]
+        bases = {f["colors"].shape[1] for f in self.frames}
+        if len(bases) != 1:
+            raise LiquidGSError(f"{path}: the PLY files hold different numbers of SH coefficients ({sorted(bases)})")
+        self.sh_degree = math.isqrt(bases.pop()) - 1
+        self.files = files
+
+    def frame_at(self, time: float) -> dict[str, torch.Tensor]:
+        return self.frames[round(time * (len(self.frames) - 1))]
+
+    @torch.no_grad()
+    def render(self, camera: Camera, time: float) -> torch.Tensor:
+        g = self.frame_at(time)
+        return rasterize(
+            g["means"], g["quats"], g["scales"], g["opacities"], g["colors"], camera.viewmat, camera.K,
+            camera.width, camera.height, sh_degree=self.sh_degree, background=self.background,
+        ).rgb  # fmt: skip
+
+
+def ply_files(path: Path) -> list[Path]:
+    """The PLY itself, or a folder's *.ply in frame order (numbers compared as numbers)."""
+    if not path.exists():
+        raise LiquidGSError(f"{path}: does not exist")
+    if path.is_file():
+        return [path]
+    files = sorted(path.glob("*.ply"), key=lambda p: [int(s) if s.isdigit() else s for s in re.split(r"(\d+)", p.name)])
+    if not files:
+        raise LiquidGSError(f"{path}: no .ply files in this folder")
+    return files
+
+
+def load_runs(run_dirs: list[Path], device: str = "auto") -> list[RunScene]:
+    """Finished runs of one scene; anything else is refused before the server starts."""
+    scenes = []
+    for run_dir in run_dirs:
+        run = load_run(run_dir, device)
+        if not run.finished:
+            raise LiquidGSError(f"{run_dir}: not a finished liquidgs run ({run.progress_label})")
+        label = f"{len(scenes) + 1}: {run.config.field} ({run_dir.name})"
+        scene = RunScene(run, label)
+        if scenes and scene.run.config.data != scenes[0].run.config.data:
+            raise LiquidGSError(
+                f"{run_dir}: trained on {scene.run.config.data}, but {run_dirs[0]} on "
+                f"{scenes[0].run.config.data}; the viewer compares runs of one scene"
+            )
+        scenes.append(scene)
+    return scenes
+
+
+def scene_centre_and_radius(points: torch.Tensor) -> tuple[np.ndarray, float]:
+    """Median point and the 90th-percentile distance from it (robust to stray Gaussians)."""
+    centre = points.median(dim=0).values
+    radius = float(torch.quantile((points - centre).norm(dim=1), 0.9))
+    return centre.double().numpy(), max(radius, 1e-3)
+
