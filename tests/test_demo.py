@@ -26,7 +26,7 @@ def test_demo_writes_the_report(tmp_path, monkeypatch, capsys):
     else:
         assert "LPIPS-Alex unavailable: backbone weights not found" in report
     side_by_side = np.asarray(Image.open(out / "side_by_side.png"))
-    assert side_by_side.shape[:2] == (32, 5 * 32)  # ground truth | static | MLP | CfC | SDE-LNN
+    assert side_by_side.shape[:2] == (128, 5 * 128)  # 32 px enlarged 4x: truth, static, MLP, CfC, SDE-LNN
     assert len(imageio.mimread(out / "sweep.mp4")) == 48
     assert f"report written to {out.resolve()}" in capsys.readouterr().err.replace("\n", "")
     # Finished runs are reused: a second demo trains nothing and rewrites the same table.

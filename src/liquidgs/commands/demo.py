@@ -32,6 +32,8 @@ from liquidgs.train.run import TrainedRun, load_run
 from liquidgs.train.trainer import load_run_dataset
 
 FRAMES = 80
+DISPLAY_SIZE = 128
+"""side_by_side.png and sweep.mp4 show renders at least this large."""
 """Frames of the demo scene (train, val and test interleaved in time)."""
 FIELDS = {"static": "static 3DGS", "mlp": "D-3DGS MLP", "cfc": "Liquid CfC", "sde": "SDE-LNN"}
 """The runs of the demo: the static model is the floor the three deformation fields must beat."""
@@ -116,13 +118,19 @@ def write_report(args: DemoArgs, runs: dict[str, Path], data_path: Path) -> Path
     frames = sorted(dataset.test, key=lambda f: f.time)
     background = torch.tensor(dataset.background, dtype=torch.float32)
 
+    # Small renders are enlarged (nearest neighbour) so the limbs and the labels can be seen.
+    zoom = max(1, DISPLAY_SIZE // max(frames[0].width, frames[0].height))
+
+    def enlarged(image: np.ndarray) -> np.ndarray:
+        return image.repeat(zoom, axis=0).repeat(zoom, axis=1)
+
     def render(run: TrainedRun, viewmat, frame, t):
-        return to_uint8(run.render(viewmat, frame.K, frame.width, frame.height, t, background).rgb)
+        return enlarged(to_uint8(run.render(viewmat, frame.K, frame.width, frame.height, t, background).rgb))
 
     moving, moving_share = moving_region_psnr(args, loaded, frames, background)
     index = fastest_moving_frame(loaded["mlp"], frames)
     frame = frames[index]
-    panels = [labelled(to_uint8(frame.image()), "ground truth")]
+    panels = [labelled(enlarged(frame.image_uint8()), "ground truth")]
     panels += [labelled(render(run, frame.viewmat, frame, frame.time), FIELDS[n]) for n, run in loaded.items()]
     write_png(args.out / "side_by_side.png", np.concatenate(panels, axis=1))
 
