@@ -51,7 +51,7 @@ def test_bench_train_times_every_phase_of_real_steps(capsys, tmp_path):
     assert record["timed_steps"] == [121, 124] and record["n_gaussians"]["min"] > 0
     phases = record["phases_ms"]
     assert set(phases) == {
-        "field_forward", "raster_forward", "loss_forward", "loss_backward", "raster_backward", "field_backward",
+        "data", "field_forward", "raster_forward", "loss_forward", "loss_backward", "raster_backward", "field_backward",
         "densification", "optimizer_step", "other",
     }  # fmt: skip
     # After the tiny preset's 100-step warm-up the field runs, so both of its passes take time.

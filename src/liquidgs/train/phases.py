@@ -15,6 +15,7 @@ from collections.abc import Iterable
 import torch
 
 PHASES = (
+    "data",
     "field_forward",
     "raster_forward",
     "loss_forward",

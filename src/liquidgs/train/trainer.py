@@ -219,6 +219,8 @@ class Trainer:
 
     def train_step(self, step: int) -> dict:
         cfg = self.cfg
+        clock = self.clock
+        clock.start()
         self._update_learning_rates(step)
         if step % cfg.sh_interval == 0:
             self.state.sh_degree = min(self.state.sh_degree + 1, cfg.sh_degree)
@@ -227,8 +229,7 @@ class Trainer:
         use_field = self.field_active(step)
         self.field.train()
         self.field.set_progress(step)
-        clock = self.clock
-        clock.start()
+        clock.mark("data")
         gaussians = deform(self.params, self.field if use_field else None, frame.time, self.time_noise(step))
         if not all(torch.isfinite(t).all() for t in (gaussians.means, gaussians.quats, gaussians.scales)):
             raise self._diverged(f"non-finite Gaussians at iteration {step}")
