@@ -1,10 +1,10 @@
 """`liquidgs demo`: the main job on a built-in default.
 
-Generates the default synthetic scene, trains the static model and the MLP, CfC and SDE-LNN fields with the tiny
-preset, evaluates them and writes a report folder: report.md (a table of the runs, with the PSNR
-of the moving pixels),
-side_by_side.png (ground truth | static | MLP | CfC | SDE-LNN on the fastest-moving test frame) and
-sweep.mp4 (the runs side by side, time going 0 -> 1 from one test camera).
+Generates the default synthetic scene, trains the static model and the MLP, CfC and SDE-LNN
+fields with the tiny preset, evaluates them and writes a report folder: report.md (a table of
+the runs, with the PSNR of the moving pixels), side_by_side.png (ground truth | static | MLP |
+CfC | SDE-LNN on the fastest-moving test frame) and sweep.mp4 (the runs side by side, time
+going 0 -> 1 from one test camera).
 Finished runs are reused, so an interrupted demo picks up where it stopped.
 """
 
@@ -32,9 +32,9 @@ from liquidgs.train.run import TrainedRun, load_run
 from liquidgs.train.trainer import load_run_dataset
 
 FRAMES = 80
+"""Frames of the demo scene (train, val and test interleaved in time)."""
 DISPLAY_SIZE = 128
 """side_by_side.png and sweep.mp4 show renders at least this large."""
-"""Frames of the demo scene (train, val and test interleaved in time)."""
 FIELDS = {"static": "static 3DGS", "mlp": "D-3DGS MLP", "cfc": "Liquid CfC", "sde": "SDE-LNN"}
 """The runs of the demo: the static model is the floor the three deformation fields must beat."""
 

@@ -175,13 +175,13 @@ def rasterize(
     features = torch.cat([rgb_colors, projection.depths[:, None]], dim=1)
     if tile_size is None:
         tile_size = DEFAULT_TILE_SIZES[chosen]
-    binning = cpu_backend.bin_gaussians_cpu if chosen == "cpu" else bin_gaussians
-    bins = binning(means2d, projection.radii_xy, projection.depths, width, height, tile_size)
     if chosen == "cpu":
+        bins = cpu_backend.bin_gaussians_cpu(means2d, projection.radii_xy, projection.depths, width, height, tile_size)
         features_image, alpha = cpu_backend.composite_tiles_cpu(
             means2d, projection.conics, opacities, features, bins, width, height, absgrad
         )
     else:
+        bins = bin_gaussians(means2d, projection.radii_xy, projection.depths, width, height, tile_size)
         features_image, alpha = composite_tiles(
             means2d, projection.conics, opacities, features, bins, width, height, absgrad, chunk_elements
         )
