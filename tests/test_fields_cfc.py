@@ -61,14 +61,15 @@ def test_stack_of_six_matches_ncps(preset, inputs, units, batch):
     xyz = torch.randn(batch, 3, dtype=torch.float64, generator=generator)
     for tau_kind in TAUS:
         t = tau_column(tau_kind, batch, generator)
-        u, tau = field.inputs(xyz, t)
+        encoded, tau = field.inputs(xyz, t)
+        u = encoded.dense()
         assert u.shape == (batch, inputs) and tau.shape == (batch, 1)
         h = torch.zeros(batch, 128, dtype=torch.float64)
         for index, reference in enumerate(references):
             if index == 3:  # the residual enters at cell D / 2
                 h = h + field.skip(u)
             h, _ = reference(u, h, tau)
-        torch.testing.assert_close(field.hidden_state(u, tau), h, rtol=1e-11, atol=1e-11)
+        torch.testing.assert_close(field.hidden_state(encoded, tau), h, rtol=1e-11, atol=1e-11)
         expected = field.readout(h)
         got = torch.cat(field(xyz, t), dim=1)
         torch.testing.assert_close(got, expected, rtol=1e-11, atol=1e-11)
@@ -143,3 +144,42 @@ def test_gate_noise_is_independent_per_cell_pass_gaussian_and_unit(monkeypatch):
     assert (per_unit - torch.eye(32).double()).abs().max() < 0.12
     assert (per_gaussian - torch.eye(32).double()).abs().max() < 0.35
     assert noise[0, 0].unique().numel() == 32 and noise[0, :, 0].unique().numel() == 2000
+
+
+def cfc_reference(field, xyz, t):
+    """The CfC stack on concatenated inputs, every layer a plain nn.Linear / nn.Sequential call."""
+    u = torch.cat([field.encode.xyz_encoding(xyz), field.encode.time_features(t).expand(len(xyz), -1)], dim=1)
+    tau = t.expand(len(xyz), 1)
+    h = torch.zeros(len(xyz), field.config.hidden, dtype=xyz.dtype)
+    for index, cell in enumerate(field.cells):
+        if index == field.skip_before:
+            h = h + field.skip(u)
+        z = cell.backbone(torch.cat((u, h), dim=1))
+        sigma = torch.sigmoid(cell.time_a(z) * tau + cell.time_b(z))
+        h = torch.tanh(cell.ff1(z)) * (1 - sigma) + sigma * torch.tanh(cell.ff2(z))
+    return field.readout(h).split((3, 4, 3), dim=1)
+
+
+@pytest.mark.parametrize("preset", ["tiny", "nerfds"])
+@pytest.mark.parametrize("shared_time", [True, False])
+def test_stack_block_products_match_the_concatenation_with_gradients(preset, shared_time):
+    """The stack runs input layers as column-block products (time folded into the bias, the
+    first cell's zero state skipped); outputs and every parameter's gradient must equal the
+    concatenated computation."""
+    torch.manual_seed(8)
+    field = build_field(FieldConfig(name="cfc", preset=preset)).double()
+    xyz = torch.randn(70, 3, dtype=torch.float64)
+    t = torch.full((1, 1), 0.6, dtype=torch.float64) if shared_time else torch.rand(70, 1, dtype=torch.float64)
+    weights = [torch.randn(70, k, dtype=torch.float64) for k in (3, 4, 3)]
+    results = []
+    for compute in (field, lambda x, s: cfc_reference(field, x, s)):
+        field.zero_grad()
+        outputs = compute(xyz, t)
+        sum((o * w).sum() for o, w in zip(outputs, weights)).backward()
+        results.append(([o.detach() for o in outputs], {n: p.grad.clone() for n, p in field.named_parameters()}))
+    (got, got_grads), (want, want_grads) = results
+    for a, b in zip(got, want):
+        torch.testing.assert_close(a, b, rtol=1e-10, atol=1e-12)
+    assert got_grads.keys() == want_grads.keys()
+    for name in want_grads:
+        torch.testing.assert_close(got_grads[name], want_grads[name], rtol=1e-10, atol=1e-12, msg=name)

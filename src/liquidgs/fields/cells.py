@@ -14,6 +14,8 @@ import torchsde
 from torch import nn
 from torch.nn import functional as F
 
+from liquidgs.fields.encoding import EncodedInputs
+
 
 class LeCunTanh(nn.Module):
     """1.7159 * tanh(0.666 x), the ncps default backbone activation."""
@@ -77,8 +79,12 @@ class LiquidCell(nn.Module):
         else:
             self.noise_head = None
 
-    def features(self, u: torch.Tensor, h: torch.Tensor) -> torch.Tensor:
-        return self.backbone(torch.cat((u, h), dim=1))
+    def features(self, u: torch.Tensor | EncodedInputs, h: torch.Tensor | None) -> torch.Tensor:
+        """z = phi([u; h]) for u dense [N, I] or as its blocks, and h [N, H] or None (the zero
+        state, whose columns are then skipped)."""
+        if isinstance(u, torch.Tensor):
+            u = EncodedInputs.plain(u)
+        return self.backbone[1:](u.linear(self.backbone[0], h))
 
     def heads(self, z: torch.Tensor) -> tuple[torch.Tensor, ...]:
         """(ff1 z, ff2 z, time_a z[, time_b z]) from one matrix product: the heads are narrow

@@ -48,8 +48,49 @@ class TimeFeatures(nn.Module):
         return features if self.timenet is None else self.timenet(features)
 
 
+class EncodedInputs:
+    """A field's input u = [gamma(x); time features], kept as its two blocks.
+
+    A Linear layer on u (and on further columns after it) runs as products of its column
+    blocks, never building the [N, I] concatenation: the time block is one row when every
+    Gaussian shares the time, so its product folds into the bias, and gamma(x) needs no
+    gradient (the field stops it), so the products on it skip their input gradient. Same
+    result as layer(cat(...)) up to float rounding (tests hold it to the concatenation).
+    """
+
+    def __init__(self, xyz: torch.Tensor, time: torch.Tensor):
+        self.xyz = xyz
+        """gamma(x), [N, Dx]."""
+        self.time = time
+        """Time features, [1, Dt] (shared time) or [N, Dt]."""
+
+    @classmethod
+    def plain(cls, u: torch.Tensor) -> EncodedInputs:
+        """A dense [N, I] input as one block (no time block)."""
+        return cls(u, u.new_zeros(1, 0))
+
+    @property
+    def rows(self) -> int:
+        return self.xyz.shape[0]
+
+    @property
+    def width(self) -> int:
+        return self.xyz.shape[1] + self.time.shape[1]
+
+    def dense(self) -> torch.Tensor:
+        """The concatenation [gamma(x); time features], [N, I]."""
+        return torch.cat((self.xyz, self.time.expand(self.rows, -1)), dim=1)
+
+    def linear(self, layer: nn.Linear, rest: torch.Tensor | None = None) -> torch.Tensor:
+        """layer([u; rest]) for rest [N, R]; rest None stands for zeros (or no further columns)."""
+        weight, dx, di = layer.weight, self.xyz.shape[1], self.width
+        out = torch.addmm(layer.bias, self.time, weight[:, dx:di].t()) if di > dx else layer.bias[None]
+        out = torch.addmm(out, self.xyz, weight[:, :dx].t())
+        return out if rest is None else torch.addmm(out, rest, weight[:, di:].t())
+
+
 class FieldInputs(nn.Module):
-    """A field's input row per Gaussian: [gamma(x); time features], time encoded once when shared."""
+    """A field's input per Gaussian: gamma(x) and the time features, time encoded once when shared."""
 
     def __init__(self, xyz_freqs: int, time_freqs: int, timenet_width: int, timenet_out: int):
         super().__init__()
@@ -57,8 +98,8 @@ class FieldInputs(nn.Module):
         self.time_features = TimeFeatures(time_freqs, timenet_width, timenet_out)
         self.out_dims = self.xyz_encoding.out_dims + self.time_features.out_dims
 
-    def forward(self, xyz: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
-        return torch.cat((self.xyz_encoding(xyz), self.time_features(t).expand(xyz.shape[0], -1)), dim=1)
+    def forward(self, xyz: torch.Tensor, t: torch.Tensor) -> EncodedInputs:
+        return EncodedInputs(self.xyz_encoding(xyz), self.time_features(t))
 
 
 def time_column(t: torch.Tensor | float, n: int, like: torch.Tensor) -> torch.Tensor:

@@ -11,7 +11,7 @@ from torch import nn
 from liquidgs.fields.base import DeformationField, Deltas, linear_flops
 from liquidgs.fields.cells import CfCCell, OUCell, SolverCell
 from liquidgs.fields.config import FieldConfig
-from liquidgs.fields.encoding import FieldInputs
+from liquidgs.fields.encoding import EncodedInputs, FieldInputs
 
 
 def schedule_factor(schedule: str, step: int, decay_steps: int) -> float:
@@ -71,17 +71,17 @@ class LiquidField(DeformationField):
         cfg = self.config
         return cfg.lambda_ * schedule_factor(cfg.lambda_schedule, self.progress_step, cfg.lambda_decay_steps)
 
-    def inputs(self, xyz: torch.Tensor, t: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """u = [gamma(x); time features] [N, I] and tau [N, 1]; a shared t is encoded once."""
+    def inputs(self, xyz: torch.Tensor, t: torch.Tensor) -> tuple[EncodedInputs, torch.Tensor]:
+        """u = [gamma(x); time features] (as its blocks) and tau [N, 1]; a shared t is encoded once."""
         return self.encode(xyz, t), t.expand(xyz.shape[0], 1)
 
-    def hidden_state(self, u: torch.Tensor, tau: torch.Tensor) -> torch.Tensor:
-        """The state after the last cell, for inputs u [N, I] and tau [N, 1]."""
+    def hidden_state(self, u: EncodedInputs, tau: torch.Tensor) -> torch.Tensor:
+        """The state after the last cell, for inputs u and tau [N, 1]."""
         lam = self.current_lambda()
-        h = u.new_zeros(u.shape[0], self.config.hidden)
+        h = None  # the zero initial state: the first cell skips its columns
         for index, cell in enumerate(self.cells):
             if index == self.skip_before:
-                h = h + self.skip(u)
+                h = u.linear(self.skip) if h is None else h + u.linear(self.skip)
             h = cell(u, h, tau, lam)
         return h
 

@@ -15,7 +15,8 @@ class MLPField(DeformationField):
     """depth Linear layers of the given width with ReLU, input = [gamma(x); time features].
 
     Skip as in the reference: after layer index depth // 2 the activations are concatenated
-    after the input features, [gamma(x); time; h], so layer depth // 2 + 1 is wider. The
+    after the input features, [gamma(x); time; h], so layer depth // 2 + 1 is wider (run
+    as products of its column blocks, see EncodedInputs). The
     reference only builds that wider layer when it exists (depth >= 3); shallower nets have
     no skip. Heads Linear(width, 3 / 4 / 3), no output activation, default nn.Linear init.
     dnerf preset: 522,280 parameters; nerfds preset: 506,378.
@@ -37,11 +38,9 @@ class MLPField(DeformationField):
 
     def deltas(self, xyz: torch.Tensor, t: torch.Tensor) -> Deltas:
         inputs = self.encode(xyz, t)
-        h = inputs
-        for i, layer in enumerate(self.layers):
-            h = F.relu(layer(h))
-            if i == self.skip_after:
-                h = torch.cat((inputs, h), dim=1)
+        h = F.relu(inputs.linear(self.layers[0]))
+        for i, layer in enumerate(self.layers[1:], start=1):
+            h = F.relu(inputs.linear(layer, h) if i - 1 == self.skip_after else layer(h))
         # The three heads as one product (they are 3, 4 and 3 columns wide); parameters stay separate.
         heads = (self.head_xyz, self.head_rotation, self.head_scaling)
         weight = torch.cat([head.weight for head in heads])
