@@ -102,8 +102,11 @@ def _gpu_count() -> int:
 
 
 def default_parallel() -> int:
-    """One run per GPU; one at a time on a CPU (a run already uses every core)."""
-    return max(1, _gpu_count())
+    """One run per GPU; on a CPU one single-threaded run per core (up to 8): small runs spend
+    much of a step in single-threaded work, and two one-thread tiny runs on 2 cores finished in
+    the time of one two-thread run (measured, 64 px puppet, MLP, 1,000 iterations: 41 vs 40 s)."""
+    gpus = _gpu_count()
+    return gpus if gpus else max(1, min(8, os.cpu_count() or 1))
 
 
 def _slot_environments(parallel: int) -> list[dict[str, str]]:
