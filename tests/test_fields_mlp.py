@@ -3,6 +3,7 @@
 import pytest
 import torch
 
+from field_reference import assert_matches_with_gradients
 from liquidgs.fields import FIELD_NAMES, FieldConfig, PositionalEncoding, build_field
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
@@ -114,19 +115,5 @@ def test_mlp_block_products_match_the_concatenation_with_gradients(preset, share
     """The field runs its input layers as products of column blocks (time folded into the
     bias); outputs and every parameter's gradient must equal the concatenated computation."""
     torch.manual_seed(1)
-    field = build_field(FieldConfig(name="mlp", preset=preset)).double()
-    xyz = torch.randn(70, 3, dtype=torch.float64)
-    t = torch.full((1, 1), 0.3, dtype=torch.float64) if shared_time else torch.rand(70, 1, dtype=torch.float64)
-    weights = [torch.randn(70, k, dtype=torch.float64) for k in (3, 4, 3)]
-    grads = []
-    for compute in (field, lambda x, s: mlp_reference(field, x, s)):
-        field.zero_grad()
-        outputs = compute(xyz, t)
-        sum((o * w).sum() for o, w in zip(outputs, weights)).backward()
-        grads.append(([o.detach() for o in outputs], {n: p.grad.clone() for n, p in field.named_parameters()}))
-    (got, got_grads), (want, want_grads) = grads
-    for a, b in zip(got, want):
-        torch.testing.assert_close(a, b, rtol=1e-10, atol=1e-12)
-    assert got_grads.keys() == want_grads.keys()
-    for name in want_grads:
-        torch.testing.assert_close(got_grads[name], want_grads[name], rtol=1e-10, atol=1e-12, msg=name)
+    field = build_field(FieldConfig(name="mlp", preset=preset))
+    assert_matches_with_gradients(field, mlp_reference, shared_time, 0.3)
