@@ -279,7 +279,7 @@ BUILTIN_SPECS["stress-mini"] = ExperimentSpec(
     "hidden-state noise, under time jitter (0.03, 0.1) and extrapolation in time (train t < 0.75), 2 seeds, on "
     "the built-in puppet scene at 64 px (generated under the experiment folder) and the shared D-NeRF "
     "hellwarrior at 1/8 (100x100): 64 runs of 300 iterations of the tiny schedule (warm-up 50, decay and "
-    "densification scaled to match), one at a time.",
+    "densification scaled to match)."
 )
 
 
