@@ -28,6 +28,9 @@ def test_demo_writes_the_report(tmp_path, monkeypatch, capsys):
     side_by_side = np.asarray(Image.open(out / "side_by_side.png"))
     assert side_by_side.shape[:2] == (128, 5 * 128)  # 32 px enlarged 4x: truth, static, MLP, CfC, SDE-LNN
     assert len(imageio.mimread(out / "sweep.mp4")) == 48
+    # Each run trained as its own `liquidgs train` process, with its command and output in a log.
+    logs = sorted((out / "logs").glob("*.log"))
+    assert len(logs) == 4 and all("liquidgs.cli train" in log.read_text() for log in logs)
     assert f"report written to {out.resolve()}" in capsys.readouterr().err.replace("\n", "")
     # Finished runs are reused: a second demo trains nothing and rewrites the same table.
     first = report

@@ -1,11 +1,13 @@
 """`liquidgs demo`: the main job on a built-in default.
 
 Generates the default synthetic scene, trains the static model and the MLP, CfC and SDE-LNN
-fields with the tiny preset, evaluates them and writes a report folder: report.md (a table of
+fields with the tiny preset (as `liquidgs train` processes, --parallel at a time, logs in
+OUT/logs), evaluates them and writes a report folder: report.md (a table of
 the runs, with the PSNR of the moving pixels), side_by_side.png (ground truth | static | MLP |
 CfC | SDE-LNN on the fastest-moving test frame) and sweep.mp4 (the runs side by side, time
 going 0 -> 1 from one test camera).
-Finished runs are reused, so an interrupted demo picks up where it stopped.
+Finished runs are reused and stopped ones resumed, so an interrupted demo picks up where it
+stopped.
 """
 
 from __future__ import annotations
