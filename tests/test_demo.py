@@ -36,3 +36,10 @@ def test_demo_writes_the_report(tmp_path, monkeypatch, capsys):
     first = report
     assert cli(["demo", "--out", str(out), "--size", "32", "--iterations", "30"]) == 0
     assert (out / "report.md").read_text() == first
+
+
+def test_demo_refuses_a_bad_parallel_before_writing_anything(tmp_path, capsys):
+    out = tmp_path / "report"
+    assert cli(["demo", "--out", str(out), "--parallel", "0"]) == 2
+    assert "--parallel must be >= 1, got 0" in capsys.readouterr().err
+    assert not out.exists()
