@@ -8,6 +8,7 @@ from collections.abc import Iterator
 
 import torch
 from torch import nn
+from torch.nn import functional as F
 
 from liquidgs.fields.config import FieldConfig
 from liquidgs.fields.encoding import time_column
@@ -18,6 +19,15 @@ Deltas = tuple[torch.Tensor, torch.Tensor, torch.Tensor]
 def linear_flops(module: nn.Module) -> int:
     """2 x multiply-adds of every nn.Linear in module, for one input row."""
     return sum(2 * m.in_features * m.out_features for m in module.modules() if isinstance(m, nn.Linear))
+
+
+def stacked_linear(x: torch.Tensor, layers: list[nn.Linear]) -> tuple[torch.Tensor, ...]:
+    """Linear layers on the same input as one product (their weights side by side), split back
+    into one output per layer. Narrow heads run several times faster this way on a CPU than one
+    product each; the parameters stay the separate layers."""
+    weight = torch.cat([layer.weight for layer in layers])
+    bias = torch.cat([layer.bias for layer in layers])
+    return F.linear(x, weight, bias).split([layer.out_features for layer in layers], dim=1)
 
 
 class DeformationField(nn.Module, abc.ABC):

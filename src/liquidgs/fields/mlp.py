@@ -6,7 +6,7 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from liquidgs.fields.base import DeformationField, Deltas, linear_flops
+from liquidgs.fields.base import DeformationField, Deltas, linear_flops, stacked_linear
 from liquidgs.fields.config import FieldConfig
 from liquidgs.fields.encoding import FieldInputs
 
@@ -41,11 +41,7 @@ class MLPField(DeformationField):
         h = F.relu(inputs.linear(self.layers[0]))
         for i, layer in enumerate(self.layers[1:], start=1):
             h = F.relu(inputs.linear(layer, h) if i - 1 == self.skip_after else layer(h))
-        # The three heads as one product (they are 3, 4 and 3 columns wide); parameters stay separate.
-        heads = (self.head_xyz, self.head_rotation, self.head_scaling)
-        weight = torch.cat([head.weight for head in heads])
-        bias = torch.cat([head.bias for head in heads])
-        return F.linear(h, weight, bias).split((3, 4, 3), dim=1)
+        return stacked_linear(h, [self.head_xyz, self.head_rotation, self.head_scaling])
 
     def flops_per_gaussian(self) -> int:
         return linear_flops(self)
