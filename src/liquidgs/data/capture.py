@@ -30,6 +30,7 @@ from liquidgs.data.nerfies import (
     camera_path,
     rgb_folder,
 )
+from liquidgs.data.validate import open_image
 from liquidgs.data.video import ExtractedFrame, collect_image_frames, crop_to_multiple, extract_video_frames
 from liquidgs.errors import ConfigError, DataError
 
@@ -154,11 +155,7 @@ def _colmap_masks(user_dir: Path, frames: list[ExtractedFrame], mask_dir: Path, 
         path = user_dir / frame.mask_name
         if not path.is_file():
             raise DataError(path, f"--mask-dynamic: no mask for {frame.source} (one per frame, named {path.name})")
-        try:
-            with Image.open(path) as handle:
-                mask = handle.convert("L").resize(frame.scaled_size, Image.Resampling.NEAREST)
-        except (OSError, SyntaxError, ValueError, Image.DecompressionBombError) as err:
-            raise DataError(path, f"--mask-dynamic: cannot decode mask ({err})") from None
+        mask = open_image(path, "L", "--mask-dynamic mask").resize(frame.scaled_size, Image.Resampling.NEAREST)
         dynamic = crop_to_multiple(np.asarray(mask)) > 0
         dynamic_share.append(dynamic.mean())
         Image.fromarray(np.where(dynamic, 0, 255).astype(np.uint8)).save(mask_dir / f"{frame.id}.png.png")

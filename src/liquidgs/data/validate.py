@@ -104,10 +104,16 @@ def probe_image(image: Path, source: Path, field: str) -> tuple[int, int]:
     return size
 
 
-def decode_image(image: Path) -> np.ndarray:
-    """The image as uint8 RGBA [H, W, 4], fully decoded; DataError if it cannot be."""
+def open_image(image: Path, mode: str, what: str = "image") -> Image.Image:
+    """The image fully decoded and converted to PIL `mode`; DataError naming the file if it
+    cannot be ("cannot decode <what>")."""
     try:
         with Image.open(image) as handle:
-            return np.asarray(handle.convert("RGBA"))
+            return handle.convert(mode)
     except (OSError, SyntaxError, ValueError, Image.DecompressionBombError) as err:
-        raise DataError(image, f"cannot decode image ({err})") from None
+        raise DataError(image, f"cannot decode {what} ({err})") from None
+
+
+def decode_image(image: Path) -> np.ndarray:
+    """The image as uint8 RGBA [H, W, 4], fully decoded; DataError if it cannot be."""
+    return np.asarray(open_image(image, "RGBA"))

@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
+from liquidgs.data.validate import open_image
 from liquidgs.errors import ConfigError, DataError
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
@@ -150,11 +151,7 @@ def collect_image_frames(folder: Path, out_dir: Path, *, max_size: int, log: Log
     first_size: tuple[int, int] | None = None
     saved = np.zeros((0, 0))
     for position, path in enumerate(files):
-        try:
-            with Image.open(path) as handle:
-                image = handle.convert("RGB")
-        except (OSError, SyntaxError, ValueError, Image.DecompressionBombError) as err:
-            raise DataError(path, f"cannot decode image ({err})") from None
+        image = open_image(path, "RGB")
         if first_size is None:
             first_size = image.size
         elif image.size != first_size:
