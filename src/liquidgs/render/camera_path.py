@@ -23,6 +23,7 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from liquidgs.atomic import write_json_atomic
 from liquidgs.errors import DataError
+from liquidgs.render.cameras import pinhole_intrinsics
 
 MAX_SIDE = 8192
 MAX_FRAMES = 100_000
@@ -44,8 +45,7 @@ class PathCamera:
 
     def intrinsics(self, width: int, height: int) -> torch.Tensor:
         """Pinhole K for an image of width x height, principal point at the centre."""
-        focal = 0.5 * height / math.tan(0.5 * math.radians(self.fov))
-        return torch.tensor([[focal, 0.0, 0.5 * width], [0.0, focal, 0.5 * height], [0.0, 0.0, 1.0]])
+        return pinhole_intrinsics(self.fov, width, height)
 
 
 @dataclass

@@ -1,10 +1,17 @@
-"""Camera helpers: look-at view matrices and orbits fitted to a set of cameras."""
+"""Camera helpers: pinhole intrinsics from a field of view, look-at view matrices and orbits
+fitted to a set of cameras."""
 
 from __future__ import annotations
 
 import math
 
 import torch
+
+
+def pinhole_intrinsics(vertical_fov_degrees: float, width: int, height: int) -> torch.Tensor:
+    """K [3,3] of a pinhole with this vertical field of view, principal point at the image centre."""
+    focal = 0.5 * height / math.tan(0.5 * math.radians(vertical_fov_degrees))
+    return torch.tensor([[focal, 0.0, 0.5 * width], [0.0, focal, 0.5 * height], [0.0, 0.0, 1.0]])
 
 
 def look_at(eye: torch.Tensor, target: torch.Tensor, up: torch.Tensor) -> torch.Tensor:

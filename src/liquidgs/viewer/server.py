@@ -26,6 +26,7 @@ from PIL import Image
 from liquidgs.data.scene import Frame
 from liquidgs.media import labelled, to_uint8
 from liquidgs.render.camera_path import PathCamera, write_camera_path
+from liquidgs.render.cameras import pinhole_intrinsics
 from liquidgs.viewer.scenes import Camera, PlyScene, RunScene, scene_centre_and_radius
 
 REST_SECONDS = 0.3
@@ -52,8 +53,7 @@ def camera_to_world(wxyz, position) -> np.ndarray:
 
 def free_camera(c2w: np.ndarray, fov: float, width: int, height: int) -> Camera:
     """The browser's camera (vertical fov in radians) as a pinhole of width x height."""
-    focal = 0.5 * height / math.tan(0.5 * fov)
-    K = torch.tensor([[focal, 0.0, 0.5 * width], [0.0, focal, 0.5 * height], [0.0, 0.0, 1.0]])
+    K = pinhole_intrinsics(math.degrees(fov), width, height)
     return Camera(torch.from_numpy(np.linalg.inv(c2w)).float(), K, width, height)
 
 
