@@ -135,6 +135,6 @@ def test_the_kernel_is_built_once_into_the_cache(tmp_path):
         result = run_python(RENDER_TWICE, LIQUIDGS_CACHE_DIR=str(cache))
         assert result.returncode == 0 and result.stdout.strip() == "cpu", result.stderr
         assert result.stderr == ""
-    built = list(cache.glob("cpu_composite-*.so"))
+    built = list(cache.glob("cpu_render-*.so"))
     assert len(built) == 1
     assert not [p for p in cache.iterdir() if p not in built], "no temporary left behind"

@@ -1,109 +1,40 @@
-"""The compiled CPU compositing kernel (cpu_composite.cpp): built on first use, loaded with ctypes.
-
-The kernel takes plain pointers, so it needs only a C++17 compiler (no torch headers, no
-ninja); it is compiled once per source, compiler and CPU into a cache folder
-($LIQUIDGS_CACHE_DIR, else ~/.cache/liquidgs) and shared by every process. Where it cannot be
-built or loaded - no compiler, LIQUIDGS_CPU_KERNEL=0, a tensor on another device - the torch
-backend does the same work, and the first time that happens one line on stderr says why.
+"""The compiled CPU rasteriser (cpu_composite.cpp: binning and tile compositing), built on first
+use by liquidgs.native. Where it cannot be built or loaded - no compiler, LIQUIDGS_CPU_KERNEL=0,
+a tensor on another device - the torch backend does the same work, and the first time that
+happens one line on stderr says why.
 """
 
 from __future__ import annotations
 
 import ctypes
-import functools
-import hashlib
-import os
-import platform
-import shutil
-import subprocess
-import sys
-import tempfile
 from pathlib import Path
 
 import torch
 from torch import Tensor
 
+from liquidgs import native
+from liquidgs.native import INT, INT64, POINTER, KernelUnavailable, pointer
 from liquidgs.render.tiles import TileBins, tile_boxes
 
-SOURCE = Path(__file__).with_name("cpu_composite.cpp")
-FLAGS = ("-O3", "-march=native", "-std=c++17", "-shared", "-fPIC", "-fopenmp")
-DISABLE_VARIABLE = "LIQUIDGS_CPU_KERNEL"
+SOURCES = (Path(__file__).with_name("cpu_composite.cpp"),)
 # Gradient row per Gaussian: means2d (2), conics (3), opacity (1), RGB + depth (4), |means2d| (2).
 ROW = 12
 FEATURES = 4
 MAX_TILE_SIZE = 32
 
-_POINTER = ctypes.c_void_p
-_INT = ctypes.c_int
-_INT64 = ctypes.c_int64
-_FORWARD_ARGS = [_POINTER] * 8 + [_INT64, _INT, _INT, _INT, _INT] + [_POINTER] * 3 + [_INT]
-_BACKWARD_ARGS = [_POINTER] * 8 + [_INT64, _INT, _INT, _INT, _INT] + [_POINTER] * 4 + [_INT64, _POINTER, _INT]
+_FORWARD_ARGS = [POINTER] * 8 + [INT64, INT, INT, INT, INT] + [POINTER] * 3 + [INT]
+_BACKWARD_ARGS = [POINTER] * 8 + [INT64, INT, INT, INT, INT] + [POINTER] * 4 + [INT64, POINTER, INT]
 
 
-class KernelUnavailable(RuntimeError):
-    pass
-
-
-def _cache_dir() -> Path:
-    root = os.environ.get("LIQUIDGS_CACHE_DIR")
-    return Path(root) if root else Path.home() / ".cache" / "liquidgs"
-
-
-def _cpu_signature() -> str:
-    """What -march=native depends on, so a cache shared across machines never runs foreign code."""
-    try:
-        lines = Path("/proc/cpuinfo").read_text().splitlines()
-        wanted = [line for line in lines if line.startswith(("model name", "flags"))][:2]
-        return "\n".join(wanted) or platform.processor()
-    except OSError:
-        return platform.processor() or platform.machine()
-
-
-def _compile(compiler: str, target: Path) -> None:
-    target.parent.mkdir(parents=True, exist_ok=True)
-    with tempfile.TemporaryDirectory(dir=target.parent) as scratch:
-        built = Path(scratch) / target.name
-        result = subprocess.run(
-            [compiler, *FLAGS, str(SOURCE), "-o", str(built)], capture_output=True, text=True, check=False
-        )
-        if result.returncode != 0:
-            first = (result.stderr.strip().splitlines() or ["no output"])[0]
-            raise KernelUnavailable(f"{compiler} failed on {SOURCE.name}: {first}")
-        os.replace(built, target)  # atomic: concurrent first uses each build, one file wins
-
-
-@functools.lru_cache(maxsize=1)
-def _library() -> ctypes.CDLL:
-    if os.environ.get(DISABLE_VARIABLE, "1") == "0":
-        raise KernelUnavailable(f"{DISABLE_VARIABLE}=0")
-    compiler = os.environ.get("CXX") or shutil.which("c++") or shutil.which("g++")
-    if compiler is None:
-        raise KernelUnavailable("no C++ compiler found (set CXX or install g++)")
-    try:
-        version = subprocess.run([compiler, "--version"], capture_output=True, text=True, check=False).stdout
-    except OSError as err:
-        raise KernelUnavailable(f"cannot run {compiler}: {err.strerror}") from None
-    key = hashlib.sha256(
-        b"\0".join(s.encode() for s in (SOURCE.read_text(), " ".join(FLAGS), version, _cpu_signature()))
-    ).hexdigest()[:16]
-    target = _cache_dir() / f"cpu_composite-{key}.so"
-    if not target.is_file():
-        try:
-            _compile(compiler, target)
-        except OSError as err:
-            raise KernelUnavailable(f"cannot build in {target.parent}: {err.strerror or err}") from None
-    try:
-        library = ctypes.CDLL(str(target))
-    except OSError as err:
-        raise KernelUnavailable(f"cannot load {target}: {err}") from None
-    library.liquidgs_bin_tiles.argtypes = [_POINTER, _POINTER, _INT64, _INT, _INT64, _POINTER, _POINTER, _POINTER]
+def _declare(library: ctypes.CDLL) -> None:
+    library.liquidgs_bin_tiles.argtypes = [POINTER, POINTER, INT64, INT, INT64, POINTER, POINTER, POINTER]
     for suffix in ("f32", "f64"):
         getattr(library, f"liquidgs_composite_forward_{suffix}").argtypes = _FORWARD_ARGS
         getattr(library, f"liquidgs_composite_backward_{suffix}").argtypes = _BACKWARD_ARGS
-    return library
 
 
-_reported: set[str] = set()
+def _library() -> ctypes.CDLL:
+    return native.load("cpu_render", SOURCES, _declare)
 
 
 def unavailable_reason(tensor: Tensor | None = None) -> str | None:
@@ -121,19 +52,7 @@ def unavailable_reason(tensor: Tensor | None = None) -> str | None:
 
 def report_fallback(reason: str) -> None:
     """One line on stderr the first time a reason sends rendering to the torch backend."""
-    if reason not in _reported:
-        _reported.add(reason)
-        print(f"liquidgs: compiled CPU rasteriser unavailable ({reason}); using the torch backend", file=sys.stderr)
-
-
-def _pointer(tensor: Tensor) -> int:
-    if not tensor.is_contiguous():
-        raise ValueError("the CPU kernel needs contiguous tensors")
-    return tensor.data_ptr()
-
-
-def _suffix(dtype: torch.dtype) -> str:
-    return "f64" if dtype == torch.float64 else "f32"
+    native.report_fallback("CPU rasteriser", reason, "the torch backend")
 
 
 class _CompositeCPU(torch.autograd.Function):
@@ -146,8 +65,8 @@ class _CompositeCPU(torch.autograd.Function):
         out_last = torch.full((height, width), -1, dtype=torch.int32)
         inputs = [t.detach().contiguous() for t in (means2d, conics, opacities, features)]
         common = _common_arguments(*inputs, bins, tile_order, width, height)
-        getattr(_library(), f"liquidgs_composite_forward_{_suffix(features.dtype)}")(
-            *common, _pointer(out_features), _pointer(out_transmittance), _pointer(out_last), torch.get_num_threads()
+        getattr(_library(), f"liquidgs_composite_forward_{native.suffix(features)}")(
+            *common, pointer(out_features), pointer(out_transmittance), pointer(out_last), torch.get_num_threads()
         )
         ctx.bins, ctx.absgrad, ctx.size = bins, absgrad, (width, height)
         ctx.save_for_backward(means2d, conics, opacities, features, tile_order, out_transmittance, out_last)
@@ -166,9 +85,9 @@ class _CompositeCPU(torch.autograd.Function):
         thread_grads = features.new_zeros(threads, means2d.shape[0], ROW)
         inputs = [t.detach().contiguous() for t in (means2d, conics, opacities, features)]
         common = _common_arguments(*inputs, bins, tile_order, width, height)
-        getattr(_library(), f"liquidgs_composite_backward_{_suffix(dtype)}")(
-            *common, _pointer(transmittance), _pointer(last), _pointer(grad_features_image),
-            _pointer(grad_alpha_image), means2d.shape[0], _pointer(thread_grads), threads,
+        getattr(_library(), f"liquidgs_composite_backward_{native.suffix(features)}")(
+            *common, pointer(transmittance), pointer(last), pointer(grad_features_image),
+            pointer(grad_alpha_image), means2d.shape[0], pointer(thread_grads), threads,
         )  # fmt: skip
         per_gaussian = thread_grads.sum(dim=0)
         if ctx.absgrad:
@@ -185,8 +104,8 @@ class _CompositeCPU(torch.autograd.Function):
 
 def _common_arguments(means2d, conics, opacities, features, bins: TileBins, tile_order, width, height) -> list:
     return [
-        _pointer(means2d), _pointer(conics), _pointer(opacities), _pointer(features),
-        _pointer(bins.gaussian_ids), _pointer(bins.tile_starts), _pointer(bins.tile_counts), _pointer(tile_order),
+        pointer(means2d), pointer(conics), pointer(opacities), pointer(features),
+        pointer(bins.gaussian_ids), pointer(bins.tile_starts), pointer(bins.tile_counts), pointer(tile_order),
         int(tile_order.numel()), bins.tile_size, bins.tiles_x, width, height,
     ]  # fmt: skip
 
@@ -205,8 +124,8 @@ def bin_gaussians_cpu(
     tile_counts = torch.empty(n_tiles, dtype=torch.int64)
     gaussian_ids = torch.empty(n_pairs, dtype=torch.int64)
     _library().liquidgs_bin_tiles(
-        _pointer(boxes.depth_order), _pointer(box), int(boxes.depth_order.numel()), boxes.tiles_x, n_tiles,
-        _pointer(tile_starts), _pointer(tile_counts), _pointer(gaussian_ids),
+        pointer(boxes.depth_order), pointer(box), int(boxes.depth_order.numel()), boxes.tiles_x, n_tiles,
+        pointer(tile_starts), pointer(tile_counts), pointer(gaussian_ids),
     )  # fmt: skip
     return TileBins(tile_size, boxes.tiles_x, boxes.tiles_y, gaussian_ids, tile_starts, tile_counts)
 
