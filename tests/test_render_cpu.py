@@ -11,6 +11,7 @@ import torch
 
 from liquidgs.render import cpu_backend
 from liquidgs.render.projection import project_gaussians
+from liquidgs.render.rasterize import view_colors
 from liquidgs.render.tiles import bin_gaussians
 from test_render import PARAMETERS, gradients, random_scene, render
 
@@ -83,6 +84,75 @@ def test_counting_sort_bins_equal_the_torch_bins(tile_size):
     assert reference.n_pairs > 500
     for name in ("gaussian_ids", "tile_starts", "tile_counts"):
         assert torch.equal(getattr(ours, name), getattr(reference, name)), name
+
+
+def hard_projection_scene(seed: int) -> dict:
+    """random_scene plus the cases the projection's gradient treats apart: Gaussians behind the
+    camera and beyond the far plane, x/z and y/z beyond the Jacobian's limits on every side, a
+    quaternion of norm near 1e-13, and flat Gaussians whose blurred 2D covariance stays positive."""
+    scene = random_scene(300, width=40, height=30, seed=seed, dtype=torch.float64, sh_degree=3)
+    means, quats, scales = scene["means"].clone(), scene["quats"].clone(), scene["scales"].clone()
+    rotation, translation = scene["viewmat"][:3, :3], scene["viewmat"][:3, 3]
+    camera_points = torch.tensor(
+        [[0.0, 0.0, -1.0], [0.1, 0.0, 0.005], [0.0, 0.0, 150.0], [9.0, 0.3, 2.0], [-9.0, 0.2, 2.0],
+         [0.1, 7.0, 2.0], [0.2, -7.0, 2.0], [30.0, -30.0, 1.5]],
+        dtype=torch.float64,
+    )  # fmt: skip
+    means[: len(camera_points)] = (camera_points - translation) @ rotation
+    quats[10] = quats[10] / quats[10].norm() * 1e-13
+    scales[11:20, 2] = 1e-6
+    return scene | {"means": means, "quats": quats, "scales": scales}
+
+
+def test_projection_kernel_matches_the_torch_projection_float64():
+    scene = hard_projection_scene(seed=7)
+    camera = (scene["viewmat"], scene["K"], 40, 30, 0.01, 100.0, 0.3)
+    results = []
+    for project in (project_gaussians, cpu_backend.project_gaussians_cpu):
+        leaves = [scene[key].clone().requires_grad_(True) for key in ("means", "quats", "scales")]
+        projection = project(*leaves, scene["opacities"], *camera)
+        outputs = (projection.means2d, projection.conics, projection.depths)
+        weights = [torch.linspace(-1, 2, t.numel(), dtype=torch.float64).reshape(t.shape) for t in outputs]
+        sum((t * w).sum() for t, w in zip(outputs, weights)).backward()
+        results.append((projection, [leaf.grad for leaf in leaves]))
+    (reference, reference_grads), (ours, ours_grads) = results
+    assert not reference.visible[:3].any() and reference.visible.sum() > 100
+    assert torch.equal(ours.visible, reference.visible) and torch.equal(ours.radii_xy, reference.radii_xy)
+    for name in ("means2d", "conics", "depths"):
+        torch.testing.assert_close(getattr(ours, name), getattr(reference, name), rtol=1e-12, atol=1e-12, msg=name)
+    for name, got, want in zip(("means", "quats", "scales"), ours_grads, reference_grads):
+        scale = want.abs().max().item()
+        assert scale > 0, name
+        torch.testing.assert_close(got, want, rtol=1e-10, atol=1e-11 * scale, msg=name)
+
+
+@pytest.mark.parametrize("sh_degree", [0, 1, 2, 3])
+def test_sh_colour_kernel_matches_the_torch_colours_float64(sh_degree):
+    """16 coefficients at every degree (the unused ones get zero gradient); some colours clamp at 0."""
+    scene = hard_projection_scene(seed=8)
+    results = []
+    for colours in (view_colors, cpu_backend.view_colors_cpu):
+        means = scene["means"].clone().requires_grad_(True)
+        coeffs = (3 * scene["colors"]).requires_grad_(True)
+        rgb = colours(coeffs, sh_degree, means, scene["viewmat"])
+        (rgb * torch.linspace(-1, 2, rgb.numel(), dtype=torch.float64).reshape(rgb.shape)).sum().backward()
+        means_grad = torch.zeros_like(means) if means.grad is None else means.grad
+        results.append((rgb, means_grad, coeffs.grad))
+    assert (results[0][0] == 0).any() and (results[0][0] > 0).any()
+    for name, got, want in zip(("rgb", "means", "coeffs"), results[1], results[0]):
+        torch.testing.assert_close(got, want, rtol=1e-12, atol=1e-13, msg=name)
+
+
+def test_a_camera_that_needs_a_gradient_gets_it_through_the_torch_projection():
+    scene = random_scene(200, width=40, height=30, seed=9, dtype=torch.float64, sh_degree=2)
+    grads = {}
+    for backend in ("torch", "cpu"):
+        viewmat = scene["viewmat"].clone().requires_grad_(True)
+        out = render(scene | {"viewmat": viewmat}, backend=backend)
+        out.rgb.sum().backward()
+        grads[backend] = viewmat.grad
+    assert grads["torch"].abs().max() > 0
+    torch.testing.assert_close(grads["cpu"], grads["torch"], rtol=1e-10, atol=1e-12)
 
 
 def test_auto_uses_the_compiled_kernel_on_cpu():

@@ -31,6 +31,12 @@ def camera_centers(viewmats: torch.Tensor) -> torch.Tensor:
     return -(rot.transpose(1, 2) @ trans[..., None])[..., 0]
 
 
+def view_centre(viewmat: torch.Tensor) -> torch.Tensor:
+    """The camera centre [3] SH colours are seen from: gsplat takes it from the inverted view
+    matrix (not from -R^T t), which differs in the last bits."""
+    return torch.linalg.inv(viewmat)[:3, 3]
+
+
 def orbit(viewmats: torch.Tensor, n_frames: int) -> list[torch.Tensor]:
     """A circular path at the cameras' mean height and distance around the point they look at.
 

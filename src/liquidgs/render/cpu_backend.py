@@ -1,7 +1,7 @@
-"""The compiled CPU rasteriser (cpu_composite.cpp: binning and tile compositing), built on first
-use by liquidgs.native. Where it cannot be built or loaded - no compiler, LIQUIDGS_CPU_KERNEL=0,
-a tensor on another device - the torch backend does the same work, and the first time that
-happens one line on stderr says why.
+"""The compiled CPU rasteriser, built on first use by liquidgs.native: cpu_project.cpp (projection
+and SH colours per Gaussian) and cpu_composite.cpp (binning and tile compositing). Where it cannot
+be built or loaded - no compiler, LIQUIDGS_CPU_KERNEL=0, a tensor on another device - the torch
+backend does the same work, and the first time that happens one line on stderr says why.
 """
 
 from __future__ import annotations
@@ -14,9 +14,12 @@ from torch import Tensor
 
 from liquidgs import native
 from liquidgs.native import INT, INT64, POINTER, KernelUnavailable, pointer
+from liquidgs.render.cameras import view_centre
+from liquidgs.render.projection import Projection, project_gaussians
+from liquidgs.render.sh import num_sh_bases
 from liquidgs.render.tiles import TileBins, tile_boxes
 
-SOURCES = (Path(__file__).with_name("cpu_composite.cpp"),)
+SOURCES = (Path(__file__).with_name("cpu_composite.cpp"), Path(__file__).with_name("cpu_project.cpp"))
 # Gradient row per Gaussian: means2d (2), conics (3), opacity (1), RGB + depth (4), |means2d| (2).
 ROW = 12
 FEATURES = 4
@@ -28,9 +31,16 @@ _BACKWARD_ARGS = [POINTER] * 8 + [INT64, INT, INT, INT, INT] + [POINTER] * 4 + [
 
 def _declare(library: ctypes.CDLL) -> None:
     library.liquidgs_bin_tiles.argtypes = [POINTER, POINTER, INT64, INT, INT64, POINTER, POINTER, POINTER]
-    for suffix in ("f32", "f64"):
+    for suffix, real in (("f32", ctypes.c_float), ("f64", ctypes.c_double)):
         getattr(library, f"liquidgs_composite_forward_{suffix}").argtypes = _FORWARD_ARGS
         getattr(library, f"liquidgs_composite_backward_{suffix}").argtypes = _BACKWARD_ARGS
+        camera = [INT64, POINTER, INT, INT, real, real, real]
+        sh = [POINTER, POINTER, INT64, INT, INT, POINTER]
+        project = f"liquidgs_project_{{}}_{suffix}"
+        getattr(library, project.format("forward")).argtypes = [POINTER] * 4 + camera + [POINTER] * 5 + [INT]
+        getattr(library, project.format("backward")).argtypes = [POINTER] * 3 + camera + [POINTER] * 6 + [INT]
+        getattr(library, f"liquidgs_sh_forward_{suffix}").argtypes = sh + [POINTER, INT]
+        getattr(library, f"liquidgs_sh_backward_{suffix}").argtypes = sh + [POINTER] * 3 + [INT]
 
 
 def _library() -> ctypes.CDLL:
@@ -53,6 +63,108 @@ def unavailable_reason(tensor: Tensor | None = None) -> str | None:
 def report_fallback(reason: str) -> None:
     """One line on stderr the first time a reason sends rendering to the torch backend."""
     native.report_fallback("CPU rasteriser", reason, "the torch backend")
+
+
+def _camera_block(viewmat: Tensor, K: Tensor) -> Tensor:
+    """The kernels' camera: world-to-camera rotation (row-major), translation, fx, fy, cx, cy."""
+    intrinsics = torch.stack([K[0, 0], K[1, 1], K[0, 2], K[1, 2]])
+    return torch.cat([viewmat[:3, :3].reshape(-1), viewmat[:3, 3], intrinsics]).detach().contiguous()
+
+
+def _float_or_zeros(grad: Tensor | None, like: Tensor) -> Tensor:
+    return torch.zeros_like(like) if grad is None else grad.to(like.dtype).contiguous()
+
+
+class _ProjectCPU(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, means, quats, scales, opacities, camera: Tensor, settings: tuple):
+        n = means.shape[0]
+        inputs = [t.detach().contiguous() for t in (means, quats, scales, opacities)]
+        means2d, conics, depths = means.new_empty(n, 2), means.new_empty(n, 3), means.new_empty(n)
+        radii_xy = torch.empty(n, 2, dtype=torch.int32)
+        visible = torch.empty(n, dtype=torch.bool)
+        getattr(_library(), f"liquidgs_project_forward_{native.suffix(means)}")(
+            *(pointer(t) for t in inputs), n, pointer(camera), *settings,
+            *(pointer(t) for t in (means2d, conics, depths, radii_xy, visible)), torch.get_num_threads(),
+        )  # fmt: skip
+        ctx.mark_non_differentiable(radii_xy, visible)
+        ctx.save_for_backward(*inputs[:3], camera)
+        ctx.settings = settings
+        return means2d, conics, depths, radii_xy, visible
+
+    @staticmethod
+    @torch.autograd.function.once_differentiable
+    def backward(ctx, grad_means2d, grad_conics, grad_depths, _grad_radii, _grad_visible):
+        means, quats, scales, camera = ctx.saved_tensors
+        grads = [torch.empty_like(t) for t in (means, quats, scales)]
+        upstream = [_float_or_zeros(g, like) for g, like in ((grad_means2d, means[:, :2]), (grad_conics, means),
+                                                            (grad_depths, means[:, 0]))]  # fmt: skip
+        getattr(_library(), f"liquidgs_project_backward_{native.suffix(means)}")(
+            *(pointer(t) for t in (means, quats, scales)), means.shape[0], pointer(camera), *ctx.settings,
+            *(pointer(t) for t in (*upstream, *grads)), torch.get_num_threads(),
+        )  # fmt: skip
+        return (*grads, None, None, None)
+
+
+def project_gaussians_cpu(
+    means: Tensor,
+    quats: Tensor,
+    scales: Tensor,
+    opacities: Tensor,
+    viewmat: Tensor,
+    K: Tensor,
+    width: int,
+    height: int,
+    near_plane: float,
+    far_plane: float,
+    eps2d: float,
+) -> Projection:
+    """projection.project_gaussians in the kernel library: same outputs and gradients (none to the camera,
+    so a camera that needs one goes to the torch version)."""
+    if viewmat.requires_grad or K.requires_grad:
+        camera = (viewmat, K, width, height, near_plane, far_plane, eps2d)
+        return project_gaussians(means, quats, scales, opacities, *camera)
+    settings = (width, height, near_plane, far_plane, eps2d)
+    means2d, conics, depths, radii_xy, visible = _ProjectCPU.apply(
+        means, quats, scales, opacities, _camera_block(viewmat, K), settings
+    )
+    return Projection(means2d=means2d, conics=conics, depths=depths, radii_xy=radii_xy, visible=visible)
+
+
+class _ViewColorsCPU(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, coeffs, means, centre: Tensor, sh_degree: int):
+        inputs = [t.detach().contiguous() for t in (means, coeffs)]
+        colors = means.new_empty(means.shape[0], 3)
+        getattr(_library(), f"liquidgs_sh_forward_{native.suffix(means)}")(
+            pointer(inputs[0]), pointer(inputs[1]), means.shape[0], coeffs.shape[1], sh_degree, pointer(centre),
+            pointer(colors), torch.get_num_threads(),
+        )  # fmt: skip
+        ctx.save_for_backward(*inputs, centre)
+        ctx.sh_degree = sh_degree
+        return colors
+
+    @staticmethod
+    @torch.autograd.function.once_differentiable
+    def backward(ctx, grad_colors):
+        means, coeffs, centre = ctx.saved_tensors
+        grad_means, grad_coeffs = torch.empty_like(means), torch.empty_like(coeffs)
+        grad_colors = grad_colors.to(means.dtype).contiguous()  # held: the kernel reads its memory
+        getattr(_library(), f"liquidgs_sh_backward_{native.suffix(means)}")(
+            pointer(means), pointer(coeffs), means.shape[0], coeffs.shape[1], ctx.sh_degree, pointer(centre),
+            pointer(grad_colors), pointer(grad_means), pointer(grad_coeffs),
+            torch.get_num_threads(),
+        )  # fmt: skip
+        return grad_coeffs, grad_means, None, None
+
+
+def view_colors_cpu(colors: Tensor, sh_degree: int | None, means: Tensor, viewmat: Tensor) -> Tensor | None:
+    """rasterize.view_colors in the kernel library, or None where the torch version must do it
+    (plain RGB, or a view matrix that needs a gradient)."""
+    if sh_degree is None or viewmat.requires_grad or colors.shape[1] < num_sh_bases(sh_degree):
+        return None
+    centre = view_centre(viewmat.detach()).contiguous()
+    return _ViewColorsCPU.apply(colors, means, centre, sh_degree)
 
 
 class _CompositeCPU(torch.autograd.Function):

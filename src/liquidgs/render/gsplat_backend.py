@@ -12,6 +12,8 @@ import math
 import torch
 from torch import Tensor
 
+from liquidgs.render.cameras import view_centre
+
 GSPLAT_TILE_SIZE = 16
 _availability: dict[str, str | None] = {}
 
@@ -87,8 +89,7 @@ def rasterize_gsplat(
     if sh_degree is None:
         rgb_colors = colors
     else:
-        camera_centre = torch.linalg.inv(viewmat)[:3, 3]
-        sh_rgb = spherical_harmonics(sh_degree, means - camera_centre, colors, masks=visible)
+        sh_rgb = spherical_harmonics(sh_degree, means - view_centre(viewmat), colors, masks=visible)
         rgb_colors = torch.clamp_min(sh_rgb + 0.5, 0.0)
     features = torch.cat([rgb_colors, depths[:, None]], dim=1)
     backgrounds = torch.cat([background, background.new_zeros(1)])[None]

@@ -11,6 +11,7 @@ import torch
 from torch import Tensor
 
 from liquidgs.render import cpu_backend, gsplat_backend
+from liquidgs.render.cameras import view_centre
 from liquidgs.render.composite import DEFAULT_CHUNK_ELEMENTS, composite_tiles
 from liquidgs.render.projection import project_gaussians
 from liquidgs.render.sh import MAX_SH_DEGREE, eval_sh, num_sh_bases
@@ -107,9 +108,7 @@ def view_colors(colors: Tensor, sh_degree: int | None, means: Tensor, viewmat: T
     """Per-Gaussian RGB [N,3]: the input itself, or SH at the view direction + 0.5 clamped at 0."""
     if sh_degree is None:
         return colors
-    # gsplat takes the camera centre from the inverted view matrix, not from -R^T t.
-    camera_centre = torch.linalg.inv(viewmat)[:3, 3]
-    return torch.clamp_min(eval_sh(sh_degree, colors, means - camera_centre) + 0.5, 0.0)
+    return torch.clamp_min(eval_sh(sh_degree, colors, means - view_centre(viewmat)) + 0.5, 0.0)
 
 
 def rasterize(
@@ -165,13 +164,14 @@ def rasterize(
             eps2d=eps2d, absgrad=absgrad,
         )  # fmt: skip
 
-    projection = project_gaussians(
-        means, quats, scales, opacities, viewmat, K, width, height, near_plane, far_plane, eps2d
-    )
+    project = cpu_backend.project_gaussians_cpu if chosen == "cpu" else project_gaussians
+    projection = project(means, quats, scales, opacities, viewmat, K, width, height, near_plane, far_plane, eps2d)
     means2d = projection.means2d
     if means2d.requires_grad:
         means2d.retain_grad()
-    rgb_colors = view_colors(colors, sh_degree, means, viewmat)
+    rgb_colors = cpu_backend.view_colors_cpu(colors, sh_degree, means, viewmat) if chosen == "cpu" else None
+    if rgb_colors is None:
+        rgb_colors = view_colors(colors, sh_degree, means, viewmat)
     features = torch.cat([rgb_colors, projection.depths[:, None]], dim=1)
     if tile_size is None:
         tile_size = DEFAULT_TILE_SIZES[chosen]
