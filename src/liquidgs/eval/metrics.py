@@ -7,12 +7,15 @@ for a single image, a [B] tensor for a batch.
 
 from __future__ import annotations
 
+import functools
 import math
 
 import torch
 import torch.nn.functional as F
 
+from liquidgs import native
 from liquidgs.errors import ConfigError
+from liquidgs.eval import cpu_ssim
 
 SSIM_WINDOW = 11
 SSIM_SIGMA = 1.5
@@ -78,6 +81,35 @@ def ssim(img: torch.Tensor, ref: torch.Tensor) -> torch.Tensor:
     Gaussian window 11x11 with sigma 1.5, C1 = 0.01^2, C2 = 0.03^2, zero-padded "same"
     filtering of each channel separately, then the mean of the SSIM map over pixels and
     channels. Differentiable, so the training loss 0.8 L1 + 0.2 (1 - SSIM) uses it too.
+
+    On the CPU (float32/float64, a reference that needs no gradient) the compiled kernel
+    eval/cpu_ssim.cpp computes it in one pass - the same score and gradient up to rounding, a
+    fraction of the time; elsewhere, or where the kernel cannot be built (one line on stderr
+    says why), `ssim_torch` does.
+    """
+    img_b, ref_b, single = image_pair(img, ref)
+    if cpu_ssim.applies(img_b, ref_b):
+        reason = cpu_ssim.unavailable_reason()
+        if reason is None:
+            window = _cpu_window(img.dtype)
+            if single:
+                return cpu_ssim.ssim_cpu(img, ref, window, SSIM_C1, SSIM_C2)
+            return torch.stack([cpu_ssim.ssim_cpu(i, r, window, SSIM_C1, SSIM_C2) for i, r in zip(img, ref)])
+        native.report_fallback("SSIM", reason, "the torch SSIM")
+    return ssim_torch(img, ref)
+
+
+@functools.cache
+def _cpu_window(dtype: torch.dtype) -> torch.Tensor:
+    return gaussian_window_1d().to(dtype)
+
+
+def ssim_torch(img: torch.Tensor, ref: torch.Tensor) -> torch.Tensor:
+    """`ssim` in torch ops: the reference the compiled kernel is held to, and its fallback.
+
+    Gaussian window 11x11 with sigma 1.5, C1 = 0.01^2, C2 = 0.03^2, zero-padded "same"
+    filtering of each channel separately, then the mean of the SSIM map over pixels and
+    channels. Differentiable in both images, on any device.
     """
     img_b, ref_b, single = image_pair(img, ref)
     channels = img_b.shape[-1]
