@@ -10,7 +10,6 @@ in torch, and `report_fallback` says so once, in one line on stderr.
 from __future__ import annotations
 
 import ctypes
-import functools
 import hashlib
 import os
 import platform
@@ -62,13 +61,28 @@ def _compile(compiler: str, sources: tuple[Path, ...], target: Path) -> None:
         os.replace(built, target)  # atomic: concurrent first uses each build, one file wins
 
 
-@functools.cache
+_outcomes: dict[tuple, ctypes.CDLL | KernelUnavailable] = {}
+
+
 def load(name: str, sources: tuple[Path, ...], declare: Callable[[ctypes.CDLL], None]) -> ctypes.CDLL:
     """The library `name` built from `sources`, after `declare` set its functions' argtypes.
 
-    Raises KernelUnavailable with the reason when it cannot be built or loaded; the answer
-    (either way) is kept for the process.
+    Raises KernelUnavailable with the reason when it cannot be built or loaded; the outcome,
+    either way, is kept for the process, so a missing compiler is looked for once.
     """
+    key = (name, sources)
+    if key not in _outcomes:
+        try:
+            _outcomes[key] = _build_and_load(name, sources, declare)
+        except KernelUnavailable as err:
+            _outcomes[key] = err
+    outcome = _outcomes[key]
+    if isinstance(outcome, KernelUnavailable):
+        raise outcome
+    return outcome
+
+
+def _build_and_load(name: str, sources: tuple[Path, ...], declare: Callable[[ctypes.CDLL], None]) -> ctypes.CDLL:
     if os.environ.get(DISABLE_VARIABLE, "1") == "0":
         raise KernelUnavailable(f"{DISABLE_VARIABLE}=0")
     compiler = os.environ.get("CXX") or shutil.which("c++") or shutil.which("g++")
