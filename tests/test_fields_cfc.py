@@ -122,14 +122,14 @@ def test_gate_noise_is_independent_per_cell_pass_gaussian_and_unit(monkeypatch):
     field = build_field(FieldConfig(name="sde", preset="tiny", lambda_=lam)).train()
     draws = []
     for cell in field.cells:
-        original = cell.gate_logits
+        original = cell.gate_noise
 
-        def recording(z, tau, lam=0.0, eps=None, time_heads=None, original=original):
-            noisy = original(z, tau, lam, eps, time_heads)
-            draws.append((noisy - original(z, tau, time_heads=time_heads)).detach())
-            return noisy
+        def recording(z, like, lam=0.0, eps=None, original=original):
+            noise = original(z, like, lam, eps)
+            draws.append(noise.detach())
+            return noise
 
-        monkeypatch.setattr(cell, "gate_logits", recording)
+        monkeypatch.setattr(cell, "gate_noise", recording)
     xyz, t = torch.randn(2000, 3), torch.rand(1, 1)
     field(xyz, t)
     field(xyz, t)

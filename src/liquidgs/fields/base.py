@@ -21,13 +21,18 @@ def linear_flops(module: nn.Module) -> int:
     return sum(2 * m.in_features * m.out_features for m in module.modules() if isinstance(m, nn.Linear))
 
 
-def stacked_linear(x: torch.Tensor, layers: list[nn.Linear]) -> tuple[torch.Tensor, ...]:
-    """Linear layers on the same input as one product (their weights side by side), split back
-    into one output per layer. Narrow heads run several times faster this way on a CPU than one
-    product each; the parameters stay the separate layers."""
+def stacked_product(x: torch.Tensor, layers: list[nn.Linear]) -> torch.Tensor:
+    """Linear layers on the same input as one product, their weights side by side: the outputs'
+    columns in the layers' order. Narrow heads run several times faster this way on a CPU than
+    one product each; the parameters stay the separate layers."""
     weight = torch.cat([layer.weight for layer in layers])
     bias = torch.cat([layer.bias for layer in layers])
-    return F.linear(x, weight, bias).split([layer.out_features for layer in layers], dim=1)
+    return F.linear(x, weight, bias)
+
+
+def stacked_linear(x: torch.Tensor, layers: list[nn.Linear]) -> tuple[torch.Tensor, ...]:
+    """stacked_product split back into one output per layer."""
+    return stacked_product(x, layers).split([layer.out_features for layer in layers], dim=1)
 
 
 class DeformationField(nn.Module, abc.ABC):

@@ -14,7 +14,8 @@ import torchsde
 from torch import nn
 from torch.nn import functional as F
 
-from liquidgs.fields.base import stacked_linear
+from liquidgs.fields.base import stacked_linear, stacked_product
+from liquidgs.fields.cpu_gate import cfc_gate
 from liquidgs.fields.encoding import EncodedInputs
 
 
@@ -87,10 +88,12 @@ class LiquidCell(nn.Module):
             u = EncodedInputs.plain(u)
         return self.backbone[1:](u.linear(self.backbone[0], h))
 
+    def head_layers(self) -> list[nn.Linear]:
+        return [self.ff1, self.ff2, self.time_a] + ([self.time_b] if self.time_b is not None else [])
+
     def heads(self, z: torch.Tensor) -> tuple[torch.Tensor, ...]:
         """(ff1 z, ff2 z, time_a z[, time_b z]) from one matrix product (see stacked_linear)."""
-        layers = [self.ff1, self.ff2, self.time_a] + ([self.time_b] if self.time_b is not None else [])
-        return stacked_linear(z, layers)
+        return stacked_linear(z, self.head_layers())
 
     def noise_scale(self, z: torch.Tensor, lam: float) -> torch.Tensor | float | None:
         """The noise standard deviation: None when lam == 0, else lam or, adaptive,
@@ -117,25 +120,30 @@ class CfCCell(LiquidCell):
     The noise is added to time_b's output, which is bit-for-bit where a hook on ncps's time_b
     would put it; lam == 0 skips it, so the cell is then exactly the deterministic CfC.
     tau must be [B, 1] (ncps's sequence wrapper squeezes it to [B], which mis-broadcasts when
-    B == H).
+    B == H). The gate runs as fields.cpu_gate.cfc_gate: one compiled pass on a CPU.
     """
+
+    def gate_noise(self, z, like: torch.Tensor, lam: float = 0.0, eps: torch.Tensor | None = None):
+        """lam * eps (or the adaptive scale times eps) for time_b's output `like`; None when lam is 0."""
+        scale = self.noise_scale(z, lam)
+        if scale is None:
+            return None
+        return scale * (torch.randn_like(like) if eps is None else eps)
 
     def gate_logits(self, z, tau, lam: float = 0.0, eps: torch.Tensor | None = None, time_heads=None) -> torch.Tensor:
         """The time gate's pre-activation time_a(z) * tau + (time_b(z) + lam * eps); time_heads,
         when given, are (time_a(z), time_b(z)) already computed."""
         t_a, t_b = time_heads if time_heads is not None else (self.time_a(z), self.time_b(z))
-        scale = self.noise_scale(z, lam)
-        if scale is not None:
-            t_b = t_b + scale * (torch.randn_like(t_b) if eps is None else eps)
+        noise = self.gate_noise(z, t_b, lam, eps)
+        if noise is not None:
+            t_b = t_b + noise
         return t_a * tau + t_b
 
     def forward(self, u, h, tau, lam: float = 0.0, eps: torch.Tensor | None = None) -> torch.Tensor:
         z = self.features(u, h)
-        ff1, ff2, t_a, t_b = self.heads(z)
-        g = torch.tanh(ff1)
-        h_cand = torch.tanh(ff2)
-        sigma = torch.sigmoid(self.gate_logits(z, tau, lam, eps, (t_a, t_b)))
-        return g * (1.0 - sigma) + sigma * h_cand
+        heads = stacked_product(z, self.head_layers())  # [ff1 | ff2 | time_a | time_b]
+        noise = self.gate_noise(z, heads[:, 3 * self.hidden_size :], lam, eps)
+        return cfc_gate(heads, tau, noise)
 
 
 def ltc_to_ou(f: torch.Tensor, a: torch.Tensor, leak: float) -> tuple[torch.Tensor, torch.Tensor]:
