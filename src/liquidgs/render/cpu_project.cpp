@@ -65,7 +65,8 @@ template <typename S> struct Projected {
     bool in_depth, clamped_x, clamped_y;
     S limit_x, limit_y;  // the limit x/z (y/z) was clamped to, when it was
     S tx, ty;
-    S J[6];  // 2x3 Jacobian, row-major
+    S J[6];   // 2x3 Jacobian, row-major
+    S jc[6];  // J cov_cam
     S a, b, c, det, det_safe;
     bool positive_det;
 };
@@ -129,18 +130,17 @@ inline void project_one(const S* mean, const S* quat, const S* scale, const Came
     p.J[3] = 0;
     p.J[4] = cam.fy / p.z_safe;
     p.J[5] = -cam.fy * p.ty / zz;
-    S jc[6];  // J cov_cam
     for (int i = 0; i < 2; ++i)
         for (int j = 0; j < 3; ++j) {
             S sum = 0;
             for (int k = 0; k < 3; ++k) sum += p.J[3 * i + k] * p.cov_cam[3 * k + j];
-            jc[3 * i + j] = sum;
+            p.jc[3 * i + j] = sum;
         }
     S cov2d[4];
     for (int i = 0; i < 2; ++i)
         for (int j = 0; j < 2; ++j) {
             S sum = 0;
-            for (int k = 0; k < 3; ++k) sum += jc[3 * i + k] * p.J[3 * j + k];
+            for (int k = 0; k < 3; ++k) sum += p.jc[3 * i + k] * p.J[3 * j + k];
             cov2d[2 * i + j] = sum;
         }
     p.a = cov2d[0] + set.eps2d;
@@ -210,16 +210,9 @@ void project_backward(const S* means, const S* quats, const S* scales, int64_t n
         // cov2d = J cov_cam J^T, of which (0,0), (0,1) and (1,1) are used: G is upper triangular.
         const S G[4] = {ga, gb, 0, gcc};
         const S Gs[4] = {2 * ga, gb, gb, 2 * gcc};  // G + G^T
-        S jc[6];  // J cov_cam
-        for (int r = 0; r < 2; ++r)
-            for (int j = 0; j < 3; ++j) {
-                S sum = 0;
-                for (int k = 0; k < 3; ++k) sum += p.J[3 * r + k] * p.cov_cam[3 * k + j];
-                jc[3 * r + j] = sum;
-            }
         S gJ[6];  // (G + G^T) J cov_cam
         for (int r = 0; r < 2; ++r)
-            for (int j = 0; j < 3; ++j) gJ[3 * r + j] = Gs[2 * r] * jc[j] + Gs[2 * r + 1] * jc[3 + j];
+            for (int j = 0; j < 3; ++j) gJ[3 * r + j] = Gs[2 * r] * p.jc[j] + Gs[2 * r + 1] * p.jc[3 + j];
         S gJ_G[6];  // G J
         for (int r = 0; r < 2; ++r)
             for (int j = 0; j < 3; ++j) gJ_G[3 * r + j] = G[2 * r] * p.J[j] + G[2 * r + 1] * p.J[3 + j];
