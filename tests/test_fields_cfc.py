@@ -108,9 +108,10 @@ def test_gate_preactivation_variance_grows_by_lambda_squared():
     u, h, tau = torch.randn(3000, 84).double(), torch.randn(3000, 128).double(), torch.rand(3000, 1).double()
     with torch.no_grad():
         z = cell.features(u, h)
-        clean = cell.gate_logits(z, tau)
+        _, _, time_a, time_b = cell.heads(z)
+        clean = time_a * tau + time_b
         for lam in (0.05, 0.5):
-            noisy = cell.gate_logits(z, tau, lam)
+            noisy = time_a * tau + (time_b + cell.gate_noise(z, time_b, lam))
             growth = noisy.var() - clean.var()
             # 384k samples: the estimate's standard error is about 0.01 * lambda.
             assert abs(growth - lam**2) < 0.05 * lam, (lam, growth)

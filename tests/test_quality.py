@@ -19,6 +19,7 @@ Each field run takes 40-65 s on one thread; the quality tests about 4.5 minutes 
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import pytest
@@ -27,12 +28,15 @@ from liquidgs.commands.demo import DENSIFY_GRAD_THRESHOLD
 from liquidgs.data import DEFAULT_SYNTHETIC_SCENE, generate_synthetic
 from liquidgs.experiments.plan import RunEntry
 from liquidgs.experiments.runner import run_local
+from liquidgs.fields.config import DEFAULT_SDE_LAMBDA
 from liquidgs.train.config import stretched_schedule
 
 HELLWARRIOR = Path(__file__).resolve().parents[2] / "shared" / "data" / "dnerf" / "hellwarrior"
 FIELDS = ("mlp", "cfc", "sde")
 DNERF_MARGIN = 1.0
 SYNTHETIC_MARGIN = 0.75
+# The suite trains seed 0; the spread above was measured with LIQUIDGS_QUALITY_SEED=1 and 2.
+SEED = int(os.environ.get("LIQUIDGS_QUALITY_SEED", "0"))
 
 pytestmark = pytest.mark.slow
 
@@ -51,9 +55,11 @@ def scores(tmp_path_factory) -> dict[str, dict[str, float]]:
     entries = []
     for field in ("sde", "cfc", "mlp", "static"):
         for scene, (path, extra, iterations) in scenes.items():
-            args = ["--data", str(path), "--preset", "tiny", "--field", field, *extra]
+            args = ["--data", str(path), "--preset", "tiny", "--field", field, "--seed", str(SEED), *extra]
             args += [*stretched_schedule("tiny", iterations), "--eval.lpips-backbone", "alex", "--eval.fps-frames", "2"]
-            entries.append(RunEntry("test", scene, field, 0.0, 0, "tiny", str(path), f"{scene}/{field}", tuple(args)))
+            lam = DEFAULT_SDE_LAMBDA if field == "sde" else 0.0
+            run_dir = f"{scene}/{field}"
+            entries.append(RunEntry("test", scene, field, lam, SEED, "tiny", str(path), run_dir, tuple(args)))
     outcomes = run_local(entries, root, 2, lambda outcome: None)
     assert all(o.status == "done" for o in outcomes), [o.message for o in outcomes]
     results = {scene: {} for scene in scenes}

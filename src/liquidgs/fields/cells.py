@@ -130,15 +130,6 @@ class CfCCell(LiquidCell):
             return None
         return scale * (torch.randn_like(like) if eps is None else eps)
 
-    def gate_logits(self, z, tau, lam: float = 0.0, eps: torch.Tensor | None = None, time_heads=None) -> torch.Tensor:
-        """The time gate's pre-activation time_a(z) * tau + (time_b(z) + lam * eps); time_heads,
-        when given, are (time_a(z), time_b(z)) already computed."""
-        t_a, t_b = time_heads if time_heads is not None else (self.time_a(z), self.time_b(z))
-        noise = self.gate_noise(z, t_b, lam, eps)
-        if noise is not None:
-            t_b = t_b + noise
-        return t_a * tau + t_b
-
     def forward(self, u, h, tau, lam: float = 0.0, eps: torch.Tensor | None = None) -> torch.Tensor:
         z = self.features(u, h)
         heads = stacked_product(z, self.head_layers())  # [ff1 | ff2 | time_a | time_b]
