@@ -42,7 +42,7 @@ class RunArgs:
     ray_address: str | None = None
     """An existing Ray cluster (e.g. 'auto' or 'ray://head:10001'); default: a local Ray instance."""
     parallel: int | None = None
-    """Runs at a time (default: one per GPU, one on a CPU)."""
+    """Runs at a time (default: one per GPU; on a CPU one single-threaded run per core, up to 8)."""
     dry_run: bool = False
     """Print the runs and where they would go; train nothing."""
 
