@@ -2,7 +2,8 @@
 
 Folders, one idea each, imports flowing one way:
   gaussians/  canonical Gaussian scene model, initialisation, PLY I/O
-  render/     the pure-function rasteriser (portable torch backend, gsplat backend)
+  native.py   builds and loads the compiled CPU kernels on first use
+  render/     the pure-function rasteriser (torch, compiled CPU and gsplat backends)
   data/       dataset readers, synthetic scenes, validation
   fields/     deformation fields (MLP, liquid CfC, stochastic CfC and variants)
   train/      the D-3DGS trainer, densification strategy, checkpoints
