@@ -82,9 +82,21 @@ def load(name: str, sources: tuple[Path, ...], declare: Callable[[ctypes.CDLL], 
     return outcome
 
 
+def unavailable_reason(name: str, sources: tuple[Path, ...], declare: Callable[[ctypes.CDLL], None]) -> str | None:
+    """None when `load` gives the library, else why it cannot."""
+    try:
+        load(name, sources, declare)
+    except KernelUnavailable as err:
+        return str(err)
+    return None
+
+
 def _build_and_load(name: str, sources: tuple[Path, ...], declare: Callable[[ctypes.CDLL], None]) -> ctypes.CDLL:
     if os.environ.get(DISABLE_VARIABLE, "1") == "0":
         raise KernelUnavailable(f"{DISABLE_VARIABLE}=0")
+    missing = [source.name for source in sources if not source.is_file()]
+    if missing:
+        raise KernelUnavailable(f"{', '.join(missing)} not installed")
     compiler = os.environ.get("CXX") or shutil.which("c++") or shutil.which("g++")
     if compiler is None:
         raise KernelUnavailable("no C++ compiler found (set CXX or install g++)")

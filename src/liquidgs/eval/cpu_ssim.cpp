@@ -218,8 +218,6 @@ void backward(const S* x, const S* y, const S* w, const Geometry& g, const S* pa
 
 extern "C" {
 
-int liquidgs_ssim_window() { return kTaps; }
-
 #define LIQUIDGS_EXPORT(S, suffix)                                                                                 \
     double liquidgs_ssim_forward_##suffix(const S* x, const S* y, const S* window, double c1, double c2,          \
                                           int64_t height, int64_t width, int channels, S* partials, int threads) { \

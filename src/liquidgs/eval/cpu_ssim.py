@@ -9,14 +9,13 @@ the same thing; this module only moves tensors in and out of the library.
 from __future__ import annotations
 
 import ctypes
-import functools
 from pathlib import Path
 
 import torch
 from torch import Tensor
 
 from liquidgs import native
-from liquidgs.native import INT, INT64, POINTER, KernelUnavailable, pointer
+from liquidgs.native import INT, INT64, POINTER, pointer
 
 SOURCES = (Path(__file__).with_name("cpu_ssim.cpp"),)
 WINDOW = 11  # the kernel's window size (kTaps)
@@ -35,20 +34,13 @@ def _declare(library: ctypes.CDLL) -> None:
         backward.argtypes, backward.restype = _BACKWARD_ARGS, None
 
 
-@functools.cache
-def _load() -> tuple[ctypes.CDLL | None, str | None]:
-    """The library, or None and why not; decided once per process."""
-    if not SOURCES[0].is_file():
-        return None, f"{SOURCES[0].name} is not installed"
-    try:
-        return native.load("cpu_ssim", SOURCES, _declare), None
-    except KernelUnavailable as err:
-        return None, str(err)
+def _library() -> ctypes.CDLL:
+    return native.load("cpu_ssim", SOURCES, _declare)
 
 
 def unavailable_reason() -> str | None:
     """None when the library is built and loaded, else why it cannot be."""
-    return _load()[1]
+    return native.unavailable_reason("cpu_ssim", SOURCES, _declare)
 
 
 def applies(img: Tensor, ref: Tensor) -> bool:
@@ -65,8 +57,7 @@ def applies(img: Tensor, ref: Tensor) -> bool:
 
 def _forward(img: Tensor, ref: Tensor, window: Tensor, c1: float, c2: float, partials: Tensor | None) -> Tensor:
     height, width, channels = img.shape
-    library = _load()[0]
-    total = getattr(library, f"liquidgs_ssim_forward_{native.suffix(img)}")(
+    total = getattr(_library(), f"liquidgs_ssim_forward_{native.suffix(img)}")(
         pointer(img), pointer(ref), pointer(window), c1, c2, height, width, channels,
         None if partials is None else pointer(partials), torch.get_num_threads(),
     )  # fmt: skip
@@ -88,7 +79,7 @@ class _SSIMCPU(torch.autograd.Function):
         x, y, window, partials = ctx.saved_tensors
         height, width, channels = x.shape
         grad = torch.empty_like(x)
-        getattr(_load()[0], f"liquidgs_ssim_backward_{native.suffix(x)}")(
+        getattr(_library(), f"liquidgs_ssim_backward_{native.suffix(x)}")(
             pointer(x), pointer(y), pointer(window), height, width, channels, pointer(partials),
             float(grad_score) / x.numel(), pointer(grad), torch.get_num_threads(),
         )  # fmt: skip

@@ -17,7 +17,7 @@ import torch
 from torch import Tensor
 
 from liquidgs import native
-from liquidgs.native import INT, INT64, POINTER, KernelUnavailable, pointer
+from liquidgs.native import INT, INT64, POINTER, pointer
 
 SOURCES = (Path(__file__).with_name("cpu_gate.cpp"),)
 LANES = 8  # float32 columns per vector in the kernel
@@ -39,11 +39,7 @@ def _library() -> ctypes.CDLL:
 
 def unavailable_reason() -> str | None:
     """None when the library is built and loaded, else why it cannot be."""
-    try:
-        _library()
-    except KernelUnavailable as err:
-        return str(err)
-    return None
+    return native.unavailable_reason("cpu_gate", SOURCES, _declare)
 
 
 def cfc_gate_torch(heads: Tensor, tau: Tensor, offset: Tensor | None = None) -> Tensor:

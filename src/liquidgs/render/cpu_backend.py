@@ -13,7 +13,7 @@ import torch
 from torch import Tensor
 
 from liquidgs import native
-from liquidgs.native import INT, INT64, POINTER, KernelUnavailable, pointer
+from liquidgs.native import INT, INT64, POINTER, pointer
 from liquidgs.render.cameras import view_centre
 from liquidgs.render.projection import Projection, project_gaussians
 from liquidgs.render.sh import num_sh_bases
@@ -53,11 +53,7 @@ def unavailable_reason(tensor: Tensor | None = None) -> str | None:
         return f"tensors are on {tensor.device.type}"
     if tensor is not None and tensor.dtype not in (torch.float32, torch.float64):
         return f"dtype {tensor.dtype} (float32 or float64 only)"
-    try:
-        _library()
-    except KernelUnavailable as err:
-        return str(err)
-    return None
+    return native.unavailable_reason("cpu_render", SOURCES, _declare)
 
 
 def report_fallback(reason: str) -> None:
@@ -69,10 +65,6 @@ def _camera_block(viewmat: Tensor, K: Tensor) -> Tensor:
     """The kernels' camera: world-to-camera rotation (row-major), translation, fx, fy, cx, cy."""
     intrinsics = torch.stack([K[0, 0], K[1, 1], K[0, 2], K[1, 2]])
     return torch.cat([viewmat[:3, :3].reshape(-1), viewmat[:3, 3], intrinsics]).detach().contiguous()
-
-
-def _float_or_zeros(grad: Tensor | None, like: Tensor) -> Tensor:
-    return torch.zeros_like(like) if grad is None else grad.to(like.dtype).contiguous()
 
 
 class _ProjectCPU(torch.autograd.Function):
@@ -96,11 +88,14 @@ class _ProjectCPU(torch.autograd.Function):
     @torch.autograd.function.once_differentiable
     def backward(ctx, grad_means2d, grad_conics, grad_depths, _grad_radii, _grad_visible):
         means, quats, scales, camera = ctx.saved_tensors
+        n = means.shape[0]
         grads = [torch.empty_like(t) for t in (means, quats, scales)]
-        upstream = [_float_or_zeros(g, like) for g, like in ((grad_means2d, means[:, :2]), (grad_conics, means),
-                                                            (grad_depths, means[:, 0]))]  # fmt: skip
+        upstream = [
+            means.new_zeros(shape) if grad is None else grad.to(means.dtype).contiguous()
+            for grad, shape in ((grad_means2d, (n, 2)), (grad_conics, (n, 3)), (grad_depths, (n,)))
+        ]
         getattr(_library(), f"liquidgs_project_backward_{native.suffix(means)}")(
-            *(pointer(t) for t in (means, quats, scales)), means.shape[0], pointer(camera), *ctx.settings,
+            *(pointer(t) for t in (means, quats, scales)), n, pointer(camera), *ctx.settings,
             *(pointer(t) for t in (*upstream, *grads)), torch.get_num_threads(),
         )  # fmt: skip
         return (*grads, None, None, None)
