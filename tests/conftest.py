@@ -1,6 +1,8 @@
 import pytest
 import torch
 
+from shared_data import lpips_weights_dir
+
 
 @pytest.fixture
 def one_torch_thread():
@@ -10,3 +12,9 @@ def one_torch_thread():
     torch.set_num_threads(1)
     yield
     torch.set_num_threads(threads)
+
+
+@pytest.fixture
+def lpips_weights():
+    """The offline LPIPS backbone weights folder from ../shared (skipped without it, failed under CI)."""
+    return lpips_weights_dir()

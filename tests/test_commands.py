@@ -16,8 +16,9 @@ from liquidgs.fields import FieldConfig, build_field
 from liquidgs.gaussians import activate, read_ply
 from liquidgs.render import rasterize
 from liquidgs.train.run import load_run
+from shared_data import optional_lpips_dir
 
-LPIPS_DIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "lpips"
+LPIPS_DIR = optional_lpips_dir()
 
 
 @pytest.fixture(scope="module")
@@ -45,7 +46,7 @@ def trained_run(tmp_path_factory) -> Path:
         "--out",
         str(out),
     ]
-    if LPIPS_DIR.is_dir():
+    if LPIPS_DIR:
         flags += ["--eval.lpips-weights", str(LPIPS_DIR)]
     cfg, run_dir = resolve_config(flags)
     train(cfg, run_dir)

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -12,8 +11,8 @@ import torch
 from PIL import Image
 
 from liquidgs.data import DataConfig, load_dataset
+from shared_data import DNERF_ROOT, require_shared
 
-DNERF_ROOT = Path("/work/shared/data/dnerf")
 COUNTS = {
     "bouncingballs": (150, 20, 20),
     "hellwarrior": (100, 20, 20),
@@ -21,10 +20,14 @@ COUNTS = {
     "standup": (150, 20, 20),
 }
 
-needs_data = pytest.mark.skipif(not DNERF_ROOT.is_dir(), reason="shared D-NeRF scenes not present")
+
+@pytest.fixture(autouse=True)
+def shared_scenes():
+    """Every test here reads the four D-NeRF scenes in ../shared/data/dnerf."""
+    for scene in COUNTS:
+        require_shared(DNERF_ROOT / scene / "transforms_train.json")
 
 
-@needs_data
 @pytest.mark.parametrize("scene", sorted(COUNTS))
 def test_shared_scene_loads_with_counts_sizes_and_intrinsics(scene):
     ds = load_dataset(DataConfig(path=DNERF_ROOT / scene, downscale=8))
@@ -45,14 +48,12 @@ def test_shared_scene_loads_with_counts_sizes_and_intrinsics(scene):
     assert ds.points is None and ds.point_colors is None
 
 
-@needs_data
 def test_lego_val_as_test_uses_the_val_frames():
     ds = load_dataset(DataConfig(path=DNERF_ROOT / "lego", downscale=8, val_as_test=True))
     assert len(ds.test) == 11
     assert [f.image_path for f in ds.test] == [f.image_path for f in ds.splits["val"]]
 
 
-@needs_data
 @pytest.mark.parametrize("background", ["black", "white"])
 def test_downscaled_image_is_area_average_of_the_composited_image(background):
     ds = load_dataset(DataConfig(path=DNERF_ROOT / "hellwarrior", downscale=4, background=background))
@@ -67,7 +68,6 @@ def test_downscaled_image_is_area_average_of_the_composited_image(background):
     assert ds.background == (bg, bg, bg)
 
 
-@needs_data
 def test_image_cache_is_bounded_lru():
     ds = load_dataset(DataConfig(path=DNERF_ROOT / "lego", downscale=8, cache_images=2))
     first, second, third = ds.train[:3]

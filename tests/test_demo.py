@@ -1,18 +1,17 @@
 """The README's main command, end to end on a small scale."""
 
-from pathlib import Path
-
 import imageio.v2 as imageio
 import numpy as np
 from PIL import Image
 
 from liquidgs.cli import main as cli
+from shared_data import optional_lpips_dir
 
-LPIPS_DIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "lpips"
+LPIPS_DIR = optional_lpips_dir()
 
 
 def test_demo_writes_the_report(tmp_path, monkeypatch, capsys):
-    if LPIPS_DIR.is_dir():
+    if LPIPS_DIR:
         monkeypatch.setenv("LIQUIDGS_LPIPS_WEIGHTS", str(LPIPS_DIR))
     out = tmp_path / "report"
     assert cli(["demo", "--out", str(out), "--size", "32", "--iterations", "30"]) == 0
@@ -21,7 +20,7 @@ def test_demo_writes_the_report(tmp_path, monkeypatch, capsys):
         assert f"| {label} |" in report
     assert "| field | PSNR | moving-region PSNR |" in report and "of the test pixels" in report
     assert "**final**" in report and "Fastest-moving test frame" in report
-    if LPIPS_DIR.is_dir():
+    if LPIPS_DIR:
         assert "LPIPS: LPIPS-Alex, v0.1, inputs scaled to [-1,1] (the paper reports LPIPS-VGG" in report
     else:
         assert "LPIPS-Alex unavailable: backbone weights not found" in report

@@ -6,7 +6,6 @@ import json
 import subprocess
 import sys
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -14,8 +13,6 @@ import torch
 
 from liquidgs.errors import ConfigError
 from liquidgs.eval import LPIPS, evaluate_views, psnr, quantize_8bit, ssim, write_json_atomic
-
-LPIPS_DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "lpips"
 
 
 @dataclass
@@ -84,8 +81,8 @@ def test_quantize_flag_changes_the_inputs():
     assert summary["lpips_unavailable"] == "no LPIPS model was given; no other LPIPS backbone was used instead"
 
 
-def test_with_lpips_model_and_no_grad():
-    lpips = LPIPS("alex", weights=LPIPS_DATA)
+def test_with_lpips_model_and_no_grad(lpips_weights):
+    lpips = LPIPS("alex", weights=lpips_weights)
     frames = make_frames(count=2, size=64)
     grad_modes = []
 
@@ -103,14 +100,14 @@ def test_with_lpips_model_and_no_grad():
     assert summary["lpips_backbone"] == "alex"
     assert summary["lpips_metric"] == "LPIPS-Alex"
     assert summary["lpips_normalize"] is True
-    assert summary["lpips_weights"] == str(LPIPS_DATA / "alexnet_features.pth")
+    assert summary["lpips_weights"] == str(lpips_weights / "alexnet_features.pth")
     assert "lpips_unavailable" not in summary
 
 
-def test_rejects_contradictory_or_empty_input():
+def test_rejects_contradictory_or_empty_input(lpips_weights):
     with pytest.raises(ConfigError, match="no views"):
         evaluate_views(noisy_render(0.1), [], lpips=None)
-    lpips = LPIPS("alex", weights=LPIPS_DATA)
+    lpips = LPIPS("alex", weights=lpips_weights)
     with pytest.raises(ConfigError, match="not both"):
         evaluate_views(noisy_render(0.1), make_frames(1), lpips=lpips, lpips_error="unavailable")
 

@@ -12,10 +12,9 @@ from PIL import Image
 from liquidgs.errors import ConfigError, LiquidGSError
 from liquidgs.eval import LPIPS, LPIPSUnavailable, lin_weights_path, resolve_backbone_weights
 from liquidgs.eval.lpips import WEIGHTS_ENV
+from shared_data import LPIPS_DIR, require_shared
 
-# Every checkout has the read-only shared folder at ../shared from the project root.
-LPIPS_DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "lpips"
-ALEX_FILE = LPIPS_DATA / "alexnet_features.pth"
+ALEX_WEIGHTS = "alexnet_features.pth"
 ALEX_HUB_NAME = "alexnet-owt-7be5be79.pth"
 
 
@@ -27,18 +26,20 @@ def isolated_weight_lookup(tmp_path, monkeypatch):
 
 
 def load_example(name: str) -> torch.Tensor:
-    return torch.from_numpy(np.array(Image.open(LPIPS_DATA / name).convert("RGB"))).float() / 255
+    path = require_shared(LPIPS_DIR / name)
+    return torch.from_numpy(np.array(Image.open(path).convert("RGB"))).float() / 255
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture
 def examples() -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """LPIPS' own example images (../shared/data/lpips)."""
     return load_example("ex_ref.png"), load_example("ex_p0.png"), load_example("ex_p1.png")
 
 
 @pytest.mark.parametrize("backbone,expected", [("alex", (0.7219, 0.1376)), ("squeeze", (0.7110, 0.1479))])
-def test_reproduces_published_check_values(backbone, expected, examples):
+def test_reproduces_published_check_values(backbone, expected, examples, lpips_weights):
     ref, p0, p1 = examples
-    metric = LPIPS(backbone, normalize=True, weights=LPIPS_DATA)
+    metric = LPIPS(backbone, normalize=True, weights=lpips_weights)
     assert round(metric(p0, ref).item(), 4) == expected[0]
     assert round(metric(p1, ref).item(), 4) == expected[1]
     batched = metric(torch.stack([p0, p1]), torch.stack([ref, ref]))
@@ -47,10 +48,11 @@ def test_reproduces_published_check_values(backbone, expected, examples):
     assert metric(ref, ref).item() == pytest.approx(0.0, abs=1e-7)
 
 
-def test_unnormalized_quirk_feeds_inputs_unchanged(examples):
+def test_unnormalized_quirk_feeds_inputs_unchanged(examples, lpips_weights):
+    alex_file = lpips_weights / ALEX_WEIGHTS
     ref, p0, _ = examples
-    quirk = LPIPS("alex", normalize=False, weights=ALEX_FILE)
-    correct = LPIPS("alex", normalize=True, weights=ALEX_FILE)
+    quirk = LPIPS("alex", normalize=False, weights=alex_file)
+    correct = LPIPS("alex", normalize=True, weights=alex_file)
     # Without normalisation x is read as if it were 2y - 1 for y = (x + 1) / 2.
     assert quirk(p0, ref).item() == pytest.approx(correct((p0 + 1) / 2, (ref + 1) / 2).item(), abs=1e-6)
     assert quirk(p0, ref).item() != pytest.approx(correct(p0, ref).item(), abs=1e-3)
@@ -58,39 +60,42 @@ def test_unnormalized_quirk_feeds_inputs_unchanged(examples):
     assert "quirk" in quirk.describe()["input_range"]
 
 
-def test_describe_records_backbone_version_and_sources():
-    info = LPIPS("squeeze", weights=LPIPS_DATA).describe()
+def test_describe_records_backbone_version_and_sources(lpips_weights):
+    info = LPIPS("squeeze", weights=lpips_weights).describe()
     assert info["backbone"] == "squeeze"
     assert info["version"] == "0.1"
     assert info["normalize"] is True
-    assert info["weights"] == str(LPIPS_DATA / "squeezenet1_1_features.pth")
+    assert info["weights"] == str(lpips_weights / "squeezenet1_1_features.pth")
     assert info["weights_source"] == "weights argument"
     assert info["lin_weights"].endswith(str(Path("lpips", "weights", "v0.1", "squeeze.pth")))
 
 
-def test_environment_variable_file_or_directory(monkeypatch):
-    monkeypatch.setenv(WEIGHTS_ENV, str(LPIPS_DATA))
-    assert resolve_backbone_weights("alex") == (ALEX_FILE, f"${WEIGHTS_ENV}")
-    monkeypatch.setenv(WEIGHTS_ENV, str(ALEX_FILE))
-    assert resolve_backbone_weights("alex") == (ALEX_FILE, f"${WEIGHTS_ENV}")
-    monkeypatch.setenv(WEIGHTS_ENV, str(LPIPS_DATA / "missing.pth"))
+def test_environment_variable_file_or_directory(monkeypatch, lpips_weights):
+    alex_file = lpips_weights / ALEX_WEIGHTS
+    monkeypatch.setenv(WEIGHTS_ENV, str(lpips_weights))
+    assert resolve_backbone_weights("alex") == (alex_file, f"${WEIGHTS_ENV}")
+    monkeypatch.setenv(WEIGHTS_ENV, str(alex_file))
+    assert resolve_backbone_weights("alex") == (alex_file, f"${WEIGHTS_ENV}")
+    monkeypatch.setenv(WEIGHTS_ENV, str(lpips_weights / "missing.pth"))
     with pytest.raises(LPIPSUnavailable, match="missing.pth does not exist"):
         resolve_backbone_weights("alex")
 
 
-def test_explicit_path_wins_and_is_not_replaced(tmp_path, monkeypatch):
-    monkeypatch.setenv(WEIGHTS_ENV, str(LPIPS_DATA))
-    assert resolve_backbone_weights("alex", ALEX_FILE) == (ALEX_FILE, "weights argument")
+def test_explicit_path_wins_and_is_not_replaced(tmp_path, monkeypatch, lpips_weights):
+    alex_file = lpips_weights / ALEX_WEIGHTS
+    monkeypatch.setenv(WEIGHTS_ENV, str(lpips_weights))
+    assert resolve_backbone_weights("alex", alex_file) == (alex_file, "weights argument")
     # A wrong explicit path fails even though the variable would have found a file.
     with pytest.raises(LPIPSUnavailable, match="nowhere.pth"):
         resolve_backbone_weights("alex", tmp_path / "nowhere.pth")
 
 
-def test_hub_cache_full_checkpoint(tmp_path, examples):
+def test_hub_cache_full_checkpoint(tmp_path, examples, lpips_weights):
     """torchvision's full model checkpoint in $TORCH_HOME: only ``features.*`` is taken."""
+    alex_file = lpips_weights / ALEX_WEIGHTS
     checkpoints = tmp_path / "torch_home" / "hub" / "checkpoints"
     checkpoints.mkdir(parents=True)
-    state = torch.load(ALEX_FILE, weights_only=True)
+    state = torch.load(alex_file, weights_only=True)
     state["classifier.1.weight"] = torch.zeros(4096, 9216)
     torch.save(state, checkpoints / ALEX_HUB_NAME)
 
@@ -101,7 +106,7 @@ def test_hub_cache_full_checkpoint(tmp_path, examples):
     assert round(metric(p0, ref).item(), 4) == 0.7219
 
 
-def test_vgg_unavailable_names_what_was_looked_for(tmp_path, monkeypatch):
+def test_vgg_unavailable_names_what_was_looked_for(tmp_path, monkeypatch, lpips_weights):
     with pytest.raises(LPIPSUnavailable) as caught:
         LPIPS("vgg")
     message = str(caught.value)
@@ -110,7 +115,7 @@ def test_vgg_unavailable_names_what_was_looked_for(tmp_path, monkeypatch):
     assert str(tmp_path / "torch_home" / "hub" / "checkpoints" / "vgg16-397923af.pth") in message
     assert isinstance(caught.value, LiquidGSError)
 
-    monkeypatch.setenv(WEIGHTS_ENV, str(LPIPS_DATA))
+    monkeypatch.setenv(WEIGHTS_ENV, str(lpips_weights))
     with pytest.raises(LPIPSUnavailable, match="vgg16_features.pth"):
         LPIPS("vgg")
 
@@ -142,9 +147,9 @@ def test_corrupt_weight_file_is_named(tmp_path):
         LPIPS("alex", weights=corrupt)
 
 
-def test_weights_of_another_backbone_are_rejected():
+def test_weights_of_another_backbone_are_rejected(lpips_weights):
     with pytest.raises(LPIPSUnavailable, match=r"squeezenet1_1_features.pth does not fit the network"):
-        LPIPS("alex", weights=LPIPS_DATA / "squeezenet1_1_features.pth")
+        LPIPS("alex", weights=lpips_weights / "squeezenet1_1_features.pth")
 
 
 def test_missing_lpips_package(monkeypatch):

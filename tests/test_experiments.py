@@ -21,8 +21,7 @@ from liquidgs.experiments import BUILTIN_SPECS, expand, load_spec, read_manifest
 from liquidgs.experiments.report import write_report
 from liquidgs.experiments.runner import run_experiment
 from liquidgs.train.config import load_yaml
-
-SHARED_DNERF = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "dnerf"
+from shared_data import DNERF_ROOT, require_shared
 
 # A run of a few seconds: 32 px, a few hundred Gaussians, an evaluation at the end only.
 FAST = {
@@ -352,8 +351,7 @@ def test_ray_missing_is_one_clear_line(monkeypatch, data_root, tmp_path):
         run_experiment(experiment, executor="ray")
 
 
-@pytest.mark.skipif(not SHARED_DNERF.is_dir(), reason="needs ../shared/data/dnerf")
 def test_mini_spec_expands_on_the_shared_scenes(tmp_path):
-    experiment = expand(load_spec("mini"), SHARED_DNERF, tmp_path / "mini")
+    experiment = expand(load_spec("mini"), require_shared(DNERF_ROOT), tmp_path / "mini")
     assert len(experiment.runs) == 12
     assert {r.scene for r in experiment.runs} == {"bouncingballs", "hellwarrior", "lego", "standup"}

@@ -21,14 +21,13 @@ from liquidgs.experiments.report.figures import PANEL, crop_window
 from liquidgs.experiments.report.references import paper_targets
 from liquidgs.experiments.report.tables import METRICS, Cell, Row, Table, to_latex
 from liquidgs.train.config import preset_config, save_yaml
+from shared_data import PAPER_DIR, optional_lpips_dir, require_shared
 
-SHARED = Path(__file__).resolve().parents[2] / "shared"
-PAPER = SHARED / "paper" / "000_90a69819efc025de.txt"
-TARGETS = SHARED / "paper" / "targets.json"
-LPIPS_DIR = SHARED / "data" / "lpips"
+PAPER = PAPER_DIR / "000_90a69819efc025de.txt"
+TARGETS = PAPER_DIR / "targets.json"
+LPIPS_DIR = optional_lpips_dir()
 RANK_BY_NAME = {"best": 0, "second": 1, "third": 2}
 RANK_BY_COLOUR = {"red!60": 0, "orange!57": 1, "yellow!55": 2}
-needs_paper = pytest.mark.skipif(not PAPER.is_file(), reason="the paper's source (../shared/paper) is not here")
 
 
 # ------------------------------------------------------------------ parsing coloured LaTeX tables
@@ -76,15 +75,14 @@ def colouring(tex: str, methods: dict[str, dict[str, list[float]]]) -> dict[tupl
 
 
 def paper_table(label: str) -> str:
-    source = PAPER.read_text()
+    source = require_shared(PAPER).read_text()
     start = source.index(f"\\label{{{label}}}")
     return source[start : source.index("\\end{tabular}", start)]
 
 
-@needs_paper
 @pytest.mark.parametrize(("label", "key"), [("tab:dnerf", "dnerf_table"), ("tab:nerfds", "nerfds_table")])
 def test_colouring_matches_the_papers_tables(label, key):
-    table = json.loads(TARGETS.read_text())[key]
+    table = json.loads(require_shared(TARGETS).read_text())[key]
     methods = table["methods"]
     expected = colouring(paper_table(label), methods)
     rows = [Row(name, name, {(s, m.key): Cell(v[i]) for s, v in per.items() for i, m in enumerate(METRICS)})
@@ -94,9 +92,8 @@ def test_colouring_matches_the_papers_tables(label, key):
     assert colouring(ours, methods) == expected
 
 
-@needs_paper
 def test_noise_study_colouring_matches_the_papers_table_iv():
-    study = json.loads(TARGETS.read_text())["noise_study_means"]
+    study = json.loads(require_shared(TARGETS).read_text())["noise_study_means"]
     lambdas = [k for k in study if k != "columns"]
     rows = [Row(lam, lam, {(d, m.key): Cell(study[lam][3 * g + i]) for g, d in enumerate(("dnerf", "nerfds"))
                            for i, m in enumerate(METRICS)}) for lam in lambdas]  # fmt: skip
@@ -111,10 +108,9 @@ def test_noise_study_colouring_matches_the_papers_table_iv():
     assert best_cells(ours) == expected
 
 
-@pytest.mark.skipif(not TARGETS.is_file(), reason="../shared/paper/targets.json is not here")
 def test_shipped_targets_are_the_shared_numbers():
     shipped = {k: v for k, v in paper_targets().items() if k != "_source"}
-    assert shipped == json.loads(TARGETS.read_text())
+    assert shipped == json.loads(require_shared(TARGETS).read_text())
     assert "targets.json" in paper_targets()["_source"]
 
 
@@ -129,7 +125,7 @@ FAST = {
 @pytest.fixture(scope="module")
 def experiment(tmp_path_factory) -> Path:
     """2 scenes (named like D-NeRF scenes, so references apply) x mlp / sde, tiny preset, 24 iterations."""
-    if LPIPS_DIR.is_dir():
+    if LPIPS_DIR:
         mp = pytest.MonkeyPatch()
         mp.setenv("LIQUIDGS_LPIPS_WEIGHTS", str(LPIPS_DIR))
     root = tmp_path_factory.mktemp("report")
@@ -143,7 +139,7 @@ def experiment(tmp_path_factory) -> Path:
     write_manifest(plan)
     for run in plan.runs:
         assert train_main([*run.train_args, "--out", str(run.folder(directory))]) == 0
-    if LPIPS_DIR.is_dir():
+    if LPIPS_DIR:
         mp.undo()
     return directory
 

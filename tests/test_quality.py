@@ -31,8 +31,9 @@ from liquidgs.experiments.plan import RunEntry
 from liquidgs.experiments.runner import run_local
 from liquidgs.fields.config import DEFAULT_SDE_LAMBDA
 from liquidgs.train.config import stretched_schedule
+from shared_data import DNERF_ROOT, require_shared
 
-HELLWARRIOR = Path(__file__).resolve().parents[2] / "shared" / "data" / "dnerf" / "hellwarrior"
+HELLWARRIOR = DNERF_ROOT / "hellwarrior"
 FIELDS = ("mlp", "cfc", "sde")
 DNERF_MARGIN = 1.5
 SYNTHETIC_MARGIN = 0.75
@@ -79,7 +80,6 @@ def test_fields_beat_static_on_the_default_synthetic_scene(scores, field):
 
 @pytest.mark.parametrize("field", FIELDS)
 def test_fields_beat_static_on_a_shared_dnerf_scene(scores, field):
-    if "hellwarrior" not in scores:
-        pytest.skip(f"shared D-NeRF scene not found at {HELLWARRIOR}")
+    require_shared(HELLWARRIOR)
     hellwarrior = scores["hellwarrior"]
     assert hellwarrior[field] >= hellwarrior["static"] + DNERF_MARGIN, hellwarrior

@@ -21,6 +21,7 @@ from liquidgs.experiments import BUILTIN_SPECS, expand, generate_scenes, spec_fr
 from liquidgs.experiments.report.significance import paired_difference
 from liquidgs.experiments.report.stress import verdict_sentence
 from liquidgs.train.config import TrainConfig, config_hash, identity, load_yaml, preset_config
+from shared_data import DNERF_ROOT, require_shared
 
 FAST = ["--preset", "tiny", "--iterations", "12", "--warmup", "4", "--init-points", "300",
         "--checkpoint-every", "6", "--eval.start", "12", "--eval.fps-frames", "2"]  # fmt: skip
@@ -239,9 +240,7 @@ def test_field_options_have_no_name_preset_or_lambda_of_their_own():
 
 
 def test_stress_specs_expand_with_named_runs(tmp_path):
-    root = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "dnerf"
-    if not (root / "hellwarrior").is_dir():
-        pytest.skip("no shared D-NeRF data")
+    root = require_shared(DNERF_ROOT / "hellwarrior").parent
     experiment = expand(BUILTIN_SPECS["stress-mini"], root, tmp_path / "e")
     assert len(experiment.runs) == sum(g.run_count() for g in BUILTIN_SPECS["stress-mini"].grids) == 64
     names = {r.name for r in experiment.runs}

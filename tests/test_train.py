@@ -3,17 +3,22 @@
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 
 from liquidgs.cli import main as cli
 from liquidgs.commands.train import resolve_config, train
-from liquidgs.data import generate_synthetic
+from liquidgs.data import generate_synthetic, synthetic
+from liquidgs.data.synthetic import Primitive
+from liquidgs.train.config import preset_config
 from liquidgs.train.trainer import Trainer, TrainingDiverged
+from shared_data import optional_lpips_dir
 
-LPIPS_DIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "lpips"
+LPIPS_DIR = optional_lpips_dir()
 
 SMOKE_FLAGS = [
     "--preset",
@@ -51,7 +56,7 @@ def small_scene(tmp_path_factory) -> Path:
 
 @pytest.fixture(autouse=True)
 def lpips_weights(monkeypatch):
-    if LPIPS_DIR.is_dir():
+    if LPIPS_DIR:
         monkeypatch.setenv("LIQUIDGS_LPIPS_WEIGHTS", str(LPIPS_DIR))
 
 
@@ -88,7 +93,7 @@ def test_each_field_trains_and_writes_a_complete_run(small_scene, tmp_path, fiel
     assert on_disk["best_of"]["iteration"] in (20, 40) and "model selection" in on_disk["best_of"]["note"]
     assert on_disk["final"]["psnr"] > 8.0 and on_disk["fps"] > 0
     assert on_disk["lpips_backbone"] == "alex"
-    if LPIPS_DIR.is_dir():
+    if LPIPS_DIR:
         assert on_disk["final"]["lpips"] is not None
     assert (on_disk["field_parameters"] == 0) == (field == "static")
     assert on_disk["lambda"] == (0.05 if field == "sde" else 0.0)
@@ -138,14 +143,111 @@ def test_divergence_guard_stops_and_keeps_the_last_good_checkpoint(small_scene, 
     assert not (out / "results.json").exists()
 
 
+def globe(time: float) -> list[Primitive]:
+    """A bright globe that fills most of every view (on a black background): when the
+    opacity reset makes every Gaussian nearly transparent, the render goes almost black."""
+    return [
+        Primitive("globe", "sphere", (1.25,), ((0.9, 0.8, 0.6), (0.9, 0.8, 0.6)), "checker", 0.5,
+                  np.eye(3), np.array([0.0, 0.0, 0.1 * time]))
+    ]  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def globe_scene(tmp_path_factory) -> Path:
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setitem(synthetic.SCENES, "globe", globe)
+        root = generate_synthetic("globe", tmp_path_factory.mktemp("globe") / "globe", size=32, frames=16, seed=0)
+    return Path(root) / "dnerf"
+
+
+GLOBE_FLAGS = ["--field", "mlp", "--preset", "tiny", "--iterations", "260", "--init-points", "1500", "--warmup", "60",
+               "--densify.start", "40", "--densify.interval", "40", "--densify.opacity-reset-interval", "150",
+               "--eval.start", "260", "--eval.fps-frames", "2", "--checkpoint-every", "50"]  # fmt: skip
+
+
+def test_opacity_reset_that_drops_psnr_by_more_than_10_db_is_not_a_divergence(globe_scene, tmp_path, monkeypatch):
+    psnrs: list[float] = []
+    original_step = Trainer.train_step
+
+    def record(self, step):
+        stats = original_step(self, step)
+        psnrs.append(stats["psnr"])
+        return stats
+
+    monkeypatch.setattr(Trainer, "train_step", record)
+    results = run_train(["--data", str(globe_scene), "--out", str(tmp_path / "run"), *GLOBE_FLAGS])
+    before = sum(psnrs[130:150]) / 20  # the 20 steps before the reset at 150
+    assert min(psnrs[150:160]) < before - 10, psnrs[140:170]  # the reset drops PSNR by more than 10 dB
+    assert sum(psnrs[-20:]) / 20 > before - 3, psnrs[-20:]  # ... and training recovers
+    assert results["final"]["iteration"] == 260
+
+
+def test_field_learning_rate_100x_too_high_is_still_caught(globe_scene, tmp_path, capsys):
+    """The field switches on at 150 (itself a scheduled disturbance) and wrecks the scene at once:
+    stopped within about 100 iterations, once the recovery window of the end of warm-up is over."""
+    out = tmp_path / "run"
+    lr = str(100 * preset_config("tiny", globe_scene).optim.field_lr_init)
+    args = ["train", "--data", str(globe_scene), "--out", str(out), *GLOBE_FLAGS, "--optim.field-lr-init", lr,
+            "--warmup", "150", "--iterations", "300", "--densify.opacity-reset-interval", "1000"]  # fmt: skip
+    assert cli(args) == 2
+    stderr = capsys.readouterr().err
+    err = stderr.strip().splitlines()[-1]  # after the progress bar
+    assert "Traceback" not in stderr and err.startswith("liquidgs train: error: ")
+    stopped = int(re.search(r"at iteration (\d+)", err).group(1))
+    assert ("training PSNR collapsed" in err or "non-finite" in err) and f"last good checkpoint in {out}" in err
+    assert 150 < stopped <= 150 + 120
+    kept = torch.load(out / "checkpoint.pt", weights_only=False)
+    assert kept["state"]["iteration"] == 50 * ((stopped - 1) // 50)
+    assert not (out / "results.json").exists()
+
+
 def test_psnr_collapse_is_detected(small_scene, tmp_path):
     cfg, run_dir = resolve_config(["--data", str(small_scene), "--out", str(tmp_path / "r"), *SMOKE_FLAGS])
     trainer = Trainer(cfg, run_dir)
     for step in range(1, 200):
         trainer._guard_divergence(step, 25.0)
-    with pytest.raises(TrainingDiverged, match="training PSNR collapsed"):
+    with pytest.raises(
+        TrainingDiverged, match=r"training PSNR collapsed at iteration 2[0-2]\d \(\d+.\d dB, best 25.0 dB\);"
+    ):
         for step in range(200, 400):
             trainer._guard_divergence(step, 5.0)
+
+
+def test_guard_measures_from_the_last_scheduled_disturbance(small_scene, tmp_path):
+    """The reset's own drop (30 -> 12 dB, recovering) is not a collapse; a collapse after the
+    recovery is, and so is a drop that has not recovered once the grace window is over."""
+    cfg, run_dir = resolve_config(["--data", str(small_scene), "--out", str(tmp_path / "r"), *SMOKE_FLAGS])
+    trainer = Trainer(cfg, run_dir)
+    n = trainer.params["means"].shape[0]
+    quiet = {"reset": 0}
+    for step in range(1, 600):
+        trainer._guard_divergence(step, 30.0)
+        assert trainer._scheduled_disturbance(step, False, n, quiet) is None or step == cfg.warmup
+    assert trainer._scheduled_disturbance(600, False, n, {"reset": 1}) == "opacity reset"
+    trainer._start_grace(600, "opacity reset")
+    for step in range(601, 660):  # 12 dB, back to 30 dB over 40 steps
+        trainer._guard_divergence(step, min(30.0, 12.0 + 18.0 * (step - 601) / 40))
+    with pytest.raises(
+        TrainingDiverged, match=r"at iteration 6\d\d \(1\d.\d dB, best 2\d.\d dB since the opacity reset at"
+    ):
+        for step in range(660, 900):  # inside the window: measured against the recovered level
+            trainer._guard_divergence(step, 5.0)
+
+    trainer = Trainer(cfg, run_dir)
+    for step in range(1, 600):
+        trainer._guard_divergence(step, 30.0)
+    trainer._start_grace(600, "end of warm-up")
+    for step in range(601, 700):  # never recovers: at the window's end the run's best applies again
+        trainer._guard_divergence(step, 12.0)
+    with pytest.raises(TrainingDiverged, match=r"collapsed at iteration 701 \(12.0 dB, best 30.0 dB\);"):
+        trainer._guard_divergence(701, 12.0)
+
+    # The other scheduled disturbances, and a densification step that is not a burst.
+    assert trainer._scheduled_disturbance(300, True, n, quiet) == "SH degree step"
+    assert trainer._scheduled_disturbance(cfg.warmup, False, n, quiet) == "end of warm-up"
+    assert trainer._scheduled_disturbance(cfg.warmup + 1, False, n, quiet) is None
+    assert trainer._scheduled_disturbance(500, False, int(n / 1.3), quiet) == "densification burst"
+    assert trainer._scheduled_disturbance(500, False, int(n / 1.1), quiet) is None
 
 
 def one_line_error(capsys) -> str:

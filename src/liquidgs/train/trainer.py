@@ -39,6 +39,15 @@ CONFIG = "config.yml"
 RUN_FILES = (CONFIG, CHECKPOINT, PER_VIEW, RESULTS)
 """What the trainer writes into a run folder (besides tensorboard/), each atomically."""
 CHECKPOINT_FORMAT = "liquidgs-checkpoint-1"
+# The PSNR guard checks from this iteration on, each time once this many steps have entered the
+# smoothed PSNR since it last started over (one step's PSNR depends on the camera drawn).
+GUARD_START = 100
+GUARD_SETTLE = 20
+# After a scheduled disturbance the guard gives training this many iterations to recover: meanwhile
+# it measures the smoothed PSNR against its best since the disturbance, then against the run's best.
+GUARD_GRACE = 100
+# A densification step that adds or removes this fraction of the Gaussians is a burst.
+DENSIFY_BURST_FRACTION = 0.25
 
 
 class TrainingDiverged(LiquidGSError):
@@ -96,6 +105,14 @@ class TrainState:
     camera_stack: list[int] = field(default_factory=list)
     psnr_ema: float | None = None
     best_psnr_ema: float = -math.inf
+    guard_samples: int = 0
+    """Steps in psnr_ema since the guard last started over (at a scheduled disturbance)."""
+    grace_until: int = 0
+    """Last iteration of the recovery window after the latest scheduled disturbance."""
+    grace_best: float = -math.inf
+    """Best psnr_ema inside that window."""
+    grace_since: str = ""
+    """That disturbance, for the guard's message: 'the opacity reset at iteration 600'."""
     train_seconds: float = 0.0
     evaluations: list[dict] = field(default_factory=list)
 
@@ -222,14 +239,17 @@ class Trainer:
         clock = self.clock
         clock.start()
         self._update_learning_rates(step)
+        sh_degree = self.state.sh_degree
         if step % cfg.sh_interval == 0:
             self.state.sh_degree = min(self.state.sh_degree + 1, cfg.sh_degree)
+        sh_raised = self.state.sh_degree > sh_degree
         frame = self.dataset.train[self.next_camera()]
         gt = frame.image().to(self.device)
         use_field = self.field_active(step)
         self.field.train()
         self.field.set_progress(step)
         clock.mark("data")
+        n_before = self.params["means"].shape[0]
         gaussians = deform(self.params, self.field if use_field else None, frame.time, self.time_noise(step))
         if not all(torch.isfinite(t).all() for t in (gaussians.means, gaussians.quats, gaussians.scales)):
             raise self._diverged(f"non-finite Gaussians at iteration {step}")
@@ -263,6 +283,9 @@ class Trainer:
             mse = ((out.rgb.detach().clamp(0, 1) - gt) ** 2).mean()
             train_psnr = float(-10.0 * torch.log10(mse.clamp_min(1e-12)))
         self._guard_divergence(step, train_psnr)
+        disturbance = self._scheduled_disturbance(step, sh_raised, n_before, report)
+        if disturbance:
+            self._start_grace(step, disturbance)
         clock.mark("other")
         return {
             "loss": float(loss.detach()),
@@ -271,13 +294,43 @@ class Trainer:
             **report,
         }
 
+    def _scheduled_disturbance(self, step: int, sh_raised: bool, n_before: int, report: dict) -> str | None:
+        """The recipe's own step that may drop the training PSNR by design, if this step was one."""
+        if report["reset"]:
+            return "opacity reset"  # every opacity set to 0.01: the image fades, then recovers
+        if sh_raised:
+            return "SH degree step"
+        if self.cfg.field != "static" and step == self.cfg.warmup:
+            return "end of warm-up"  # the field's deltas switch on
+        if abs(self.params["means"].shape[0] - n_before) >= DENSIFY_BURST_FRACTION * n_before:
+            return "densification burst"
+        return None
+
+    def _start_grace(self, step: int, disturbance: str) -> None:
+        """A drop the schedule caused is not a divergence: for GUARD_GRACE iterations the smoothed
+        PSNR starts over and is held against its best since the disturbance (a collapse after a
+        partial recovery still stops the run); after them, training must be back within reach of
+        the run's best, or it did not recover and stops then."""
+        s = self.state
+        s.psnr_ema, s.guard_samples = None, 0
+        s.grace_until, s.grace_best = step + GUARD_GRACE, -math.inf
+        s.grace_since = f"the {disturbance} at iteration {step}"
+
     def _guard_divergence(self, step: int, train_psnr: float) -> None:
         s = self.state
         s.psnr_ema = train_psnr if s.psnr_ema is None else 0.95 * s.psnr_ema + 0.05 * train_psnr
+        s.guard_samples += 1
+        if s.guard_samples < GUARD_SETTLE:
+            return
         s.best_psnr_ema = max(s.best_psnr_ema, s.psnr_ema)
-        if step >= max(self.cfg.warmup, 100) and s.psnr_ema < s.best_psnr_ema - self.cfg.divergence_drop_db:
+        if step <= s.grace_until:
+            s.grace_best = max(s.grace_best, s.psnr_ema)
+            best, since = s.grace_best, f" since {s.grace_since}"
+        else:
+            best, since = s.best_psnr_ema, ""
+        if step >= GUARD_START and s.psnr_ema < best - self.cfg.divergence_drop_db:
             raise self._diverged(
-                f"training PSNR collapsed at iteration {step} ({s.psnr_ema:.1f} dB, best {s.best_psnr_ema:.1f} dB)",
+                f"training PSNR collapsed at iteration {step} ({s.psnr_ema:.1f} dB, best {best:.1f} dB{since})",
                 " - try a lower field learning rate",
             )
 
