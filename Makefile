@@ -1,13 +1,19 @@
 # Two commands do all set-up on a fresh machine:
 #   make demo   - train MLP / CfC / SDE-LNN on the built-in synthetic scene, write a report
 #   make test   - the whole test suite (what .ci/run calls)
+# and one opt-in target:
+#   make lpips-reference - re-check (or, with LPIPS_REFERENCE=write, re-record) the PyPI lpips
+#                          distances that tests/test_lpips_reference.py holds ours to; it builds
+#                          a separate 5.6 GB environment (torch 2.14.1 + torchvision) for them
 PY ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
-# The PyPI lpips package with torchvision, apart from .venv: tests hold our LPIPS against it.
+# The PyPI lpips package with torchvision, apart from .venv (make lpips-reference only).
 LPIPS_REF := .venv-lpips-ref
+LPIPS_RECORD := tests/data/lpips_pypi_reference.json
+LPIPS_REFERENCE ?= check
 
-.PHONY: demo test lint setup
+.PHONY: demo test lint setup lpips-reference
 
 # As the liquidgs command does (liquidgs/__init__.py): idle OpenMP threads sleep, not spin.
 export OMP_WAIT_POLICY ?= PASSIVE
@@ -28,10 +34,14 @@ setup: $(BIN)/liquidgs
 demo: $(BIN)/liquidgs
 	$(BIN)/liquidgs demo --out report
 
-test: $(BIN)/liquidgs $(LPIPS_REF)/installed
+test: $(BIN)/liquidgs
 	bash scripts/setup_browser.sh
 	$(BIN)/ruff check src tests
 	$(BIN)/python -m pytest -q tests
 
 lint: $(BIN)/liquidgs
 	$(BIN)/ruff check src tests
+
+lpips-reference: $(BIN)/liquidgs $(LPIPS_REF)/installed
+	env -u PYTHONPATH $(LPIPS_REF)/bin/python tests/lpips_reference.py $(LPIPS_REFERENCE) $(LPIPS_RECORD)
+	$(BIN)/python -m pytest -q tests/test_lpips_reference.py

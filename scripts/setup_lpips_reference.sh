@@ -1,9 +1,10 @@
 #!/usr/bin/env bash
-# Creates the reference environment that tests/test_lpips_reference.py runs the PyPI `lpips`
-# package in. It is separate from .venv because lpips imports torchvision, and PyPI's
-# torchvision does not load beside the project's torch; torch 2.14.1 with torchvision 0.29.1
-# is a matching pair (a CUDA build of about 5.5 GB; only its CPU code is used).
-# The marker file is written last: `make test` reruns this script while it is missing, so an
+# Creates the environment `make lpips-reference` runs the PyPI `lpips` package in, to re-check or
+# re-record tests/data/lpips_pypi_reference.json (what tests/test_lpips_reference.py holds our
+# LPIPS to; `make test` needs only that file). It is separate from .venv because lpips imports
+# torchvision, and PyPI's torchvision does not load beside the project's torch; torch 2.14.1 with
+# torchvision 0.29.1 is a matching pair (a CUDA build of about 5.5 GB; only its CPU code is used).
+# The marker file is written last: make reruns this script while it is missing, so an
 # interrupted install is completed. Running it again on a complete environment installs nothing.
 set -euo pipefail
 venv=${1:-.venv-lpips-ref}
