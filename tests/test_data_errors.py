@@ -205,12 +205,12 @@ CASES = {
         "image_size",
         "expected 16x16",
     ),
-    "empty val_ids": (
+    "empty train_ids": (
         "nerfies",
-        lambda r: edit_json(r / "dataset.json", lambda d: d.update(val_ids=[])),
+        lambda r: edit_json(r / "dataset.json", lambda d: d.update(train_ids=[])),
         "dataset.json",
-        "val_ids",
-        "empty test split",
+        "train_ids",
+        "empty train split for preset 'nerfds'",
     ),
     "malformed scene.json": (
         "nerfies",
@@ -292,3 +292,20 @@ def test_distortion_is_reported_by_check_and_warned_on_load(pristine, tmp_path):
         load_dataset(DataConfig(path=root))
     lines = check_dataset(DataConfig(path=root)).lines()
     assert any(line.startswith("warning:") and "camera/0001.json" in line for line in lines)
+
+
+def test_hyper_nerf_interp_capture_is_read_with_the_interp_split(pristine, tmp_path):
+    """A HyperNeRF interp capture: empty val_ids, pixel_aspect_ratio, radial + tangential distortion."""
+    root = tmp_path / "interp"
+    shutil.copytree(pristine / "nerfies", root)
+    edit_json(root / "dataset.json", lambda d: d.update(val_ids=[]))
+    for camera in (root / "camera").glob("*.json"):
+        edit_json(camera, lambda d: d.update(pixel_aspect_ratio=1.0, radial_distortion=[0.01, -0.002, 0.0],
+                                             tangential_distortion=[0.0005, -0.0003]))  # fmt: skip
+    ids = json.loads((root / "dataset.json").read_text())["ids"]
+    with pytest.warns(UserWarning) as caught:
+        ds = load_dataset(DataConfig(path=root))
+    assert [f.name for f in ds.train] == ids[::4] and [f.name for f in ds.test] == ids[2::4]
+    assert any("empty val_ids, so split 'auto' reads it as an interp capture" in str(w.message) for w in caught)
+    with pytest.raises(DataError, match=r"empty test split for preset 'nerfds' \(.*use --split interp\)"):
+        load_dataset(DataConfig(path=root, split="nerfds"))
