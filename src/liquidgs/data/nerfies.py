@@ -104,9 +104,6 @@ def read_nerfies(cfg: DataConfig) -> SceneDataset:
     root = cfg.path
     if cfg.val_as_test:
         raise ConfigError("data.val_as_test: applies to D-NeRF scenes; Nerfies splits come from data.split")
-    preset = "nerfds" if cfg.split == "auto" else cfg.split
-    factor = cfg.downscale or NERFIES_PRESETS[preset]
-
     scene_path = root / SCENE_FILE
     scene = read_json(scene_path)
     scale = as_number(require(scene, "scale", scene_path, "scale"), scene_path, "scale", positive=True)
@@ -114,6 +111,19 @@ def read_nerfies(cfg: DataConfig) -> SceneDataset:
 
     dataset_path = root / DATASET_FILE
     dataset = read_json(dataset_path)
+    notes = []
+    preset = cfg.split
+    if preset == "auto":
+        # HyperNeRF's interp captures ship an empty val_ids: their test frames are every 4th id
+        # (D-3DGS picks this split from an interp* folder name; the file says it here).
+        interp = isinstance(dataset, dict) and dataset.get("val_ids") == []
+        preset = "interp" if interp else "nerfds"
+        if interp:
+            notes.append(
+                "dataset.json has an empty val_ids, so split 'auto' reads it as an interp capture "
+                "(train ids[::4], test ids[2::4], 1/2 size); --split chooses another"
+            )
+    factor = cfg.downscale or NERFIES_PRESETS[preset]
     if preset == "interp":
         ids = _id_list(dataset, "ids", dataset_path)
         id_splits = {"train": (ids[::4], "ids"), "test": (ids[2::4], "ids")}
@@ -124,7 +134,8 @@ def read_nerfies(cfg: DataConfig) -> SceneDataset:
         }
     for split, (ids, field) in id_splits.items():
         if not ids:
-            raise DataError(dataset_path, f"empty {split} split for preset '{preset}'", field=field)
+            hint = " (a HyperNeRF interp capture has none: use --split interp)" if field == "val_ids" else ""
+            raise DataError(dataset_path, f"empty {split} split for preset '{preset}'{hint}", field=field)
 
     times = _read_times(root / METADATA_FILE, [i for ids, _ in id_splits.values() for i in ids])
     folder, source_factor = _image_folder(root, factor)
@@ -168,11 +179,12 @@ def read_nerfies(cfg: DataConfig) -> SceneDataset:
             )
         splits[split] = frames
 
-    warnings = []
+    warnings = notes
     if distorted:
         warnings.append(
             f"{len(set(distorted))} camera(s) have nonzero lens distortion (e.g. camera/"
-            f"{distorted[0]}.json); the rasteriser is pinhole, so images are used undistorted-as-is"
+            f"{distorted[0]}.json); the rasteriser is pinhole, so the images are used as they are "
+            f"(liquidgs data undistort {root} --out NEW writes a pinhole copy)"
         )
     if skewed:
         warnings.append(
