@@ -1,4 +1,4 @@
-"""`liquidgs bench {raster,fields,train}`: benchmarks that print one JSON object per case."""
+"""`liquidgs bench {raster,fields,train,gpu}`: benchmarks that print one JSON object per case."""
 
 from __future__ import annotations
 
@@ -11,6 +11,7 @@ BENCHMARKS = {
     "raster": "liquidgs.render.benchmark",
     "fields": "liquidgs.fields.benchmark",
     "train": "liquidgs.train.benchmark",
+    "gpu": "liquidgs.train.acceptance",
 }
 
 

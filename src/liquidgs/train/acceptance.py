@@ -1,0 +1,157 @@
+"""`liquidgs bench gpu`: train one scene at full resolution on a GPU for a fixed time, then score it.
+
+The training half of the GPU acceptance (scripts/gpu_acceptance.sh does the installs, the gsplat
+build and `pytest -m cuda` first, then calls this with the seconds that are left). It trains the
+preset's schedule (dnerf: 40,000 iterations planned) with the gsplat backend until --budget-s
+seconds of training have passed, evaluates the test views at that iteration (labelled: a run
+cut short, not the preset's final number), times rendering with the field, and appends one JSON
+line with the GPU's name to --output (benchmarks/gpu.jsonl). --dry-run checks the arguments and
+the scene and prints the plan, on any machine.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+import time
+from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
+
+import torch
+
+from liquidgs.data import DataConfig, load_dataset
+from liquidgs.errors import ConfigError
+from liquidgs.render.benchmark import machine_description
+from liquidgs.train.config import FIELDS, PRESETS, preset_config, validate
+from liquidgs.train.trainer import Trainer
+
+DEFAULT_OUTPUT = Path("benchmarks/gpu.jsonl")
+MIN_BUDGET_S = 10.0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="liquidgs bench gpu", description=__doc__.splitlines()[0])
+    parser.add_argument("--data", type=Path, required=True, help="scene folder (e.g. a D-NeRF scene at 800x800)")
+    parser.add_argument("--budget-s", type=float, default=420.0, help="seconds of training (default 420)")
+    parser.add_argument("--preset", default="dnerf", choices=PRESETS)
+    parser.add_argument("--field", default="mlp", choices=FIELDS)
+    parser.add_argument("--downscale", type=int, default=1, help="image downscale (default 1: full resolution)")
+    parser.add_argument("--fps-frames", type=int, default=50, help="frames timed for the render FPS (default 50)")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--out", type=Path, help="run folder (default: a temporary folder)")
+    parser.add_argument("--output", type=Path, default=DEFAULT_OUTPUT, help=f"JSON lines (default {DEFAULT_OUTPUT})")
+    parser.add_argument("--dry-run", action="store_true", help="check the arguments and the scene, print the plan")
+    return parser
+
+
+def run_config(args: argparse.Namespace):
+    """The run this benchmark trains: the preset on the GPU with gsplat, no evaluation inside the budget."""
+    if not args.budget_s >= MIN_BUDGET_S:
+        raise ConfigError(f"--budget-s must be at least {MIN_BUDGET_S:g} seconds, got {args.budget_s}")
+    if args.fps_frames < 1:
+        raise ConfigError(f"--fps-frames must be >= 1, got {args.fps_frames}")
+    cfg = preset_config(args.preset, args.data)
+    cfg.field, cfg.seed, cfg.downscale = args.field, args.seed, args.downscale
+    cfg.device, cfg.backend = "cuda", "gsplat"
+    cfg.eval.start = cfg.iterations + 1  # evaluated once, when the budget is spent
+    cfg.eval.fps_frames = args.fps_frames
+    validate(cfg)
+    return cfg
+
+
+def plan_lines(args: argparse.Namespace, cfg, resolution: tuple[int, int], test_views: int) -> list[str]:
+    return [
+        f"scene {args.data} ({resolution[0]}x{resolution[1]}, {test_views} test views), field {cfg.field}, "
+        f"preset {cfg.preset} ({cfg.iterations} iterations planned), seed {cfg.seed}, backend gsplat on cuda",
+        f"train for {args.budget_s:g} s, then evaluate the test views at the iteration reached "
+        f"and time {args.fps_frames} renders with the field",
+        f"append one JSON line to {args.output}",
+    ]
+
+
+def summary_lines(record: dict) -> list[str]:
+    """What the acceptance prints at the end, from the JSON record."""
+    width, height = record["resolution"]
+    lpips = record["lpips"]
+    return [
+        f"GPU: {record['device_name']} (torch {record['torch_version']}, gsplat {record['gsplat_version']})",
+        f"{record['scene']} {width}x{height}, {record['field']}: {record['iterations']} iterations in "
+        f"{record['train_seconds']:.0f} s = {record['iterations_per_second']:.1f} it/s "
+        f"({record['n_gaussians']:,} Gaussians at the end)",
+        f"render with the field: {record['render_fps']:.1f} FPS at {width}x{height}",
+        f"test PSNR {record['psnr']:.2f} dB, SSIM {record['ssim']:.4f}, "
+        + (f"{record['lpips_metric']} {lpips:.4f}" if lpips is not None else "LPIPS unavailable")
+        + f" - {record['evaluation']}",
+    ]
+
+
+def _gsplat_version() -> str:
+    try:
+        return version("gsplat")
+    except PackageNotFoundError:
+        return "not installed"
+
+
+def measure(args: argparse.Namespace, cfg, run_dir: Path) -> dict:
+    trainer = Trainer(cfg, run_dir)
+    started = time.perf_counter()
+    step = 0
+    while time.perf_counter() - started < args.budget_s and step < cfg.iterations:
+        step += 1
+        trainer.train_step(step)
+        trainer.state.iteration = step
+    torch.cuda.synchronize()
+    seconds = time.perf_counter() - started
+    summary, _ = trainer.evaluate()
+    frame = trainer.dataset.test[0] if trainer.dataset.test else trainer.dataset.train[0]
+    return {
+        "benchmark": "gpu-acceptance",
+        "device_name": machine_description(trainer.device),
+        "torch_version": torch.__version__,
+        "gsplat_version": _gsplat_version(),
+        "scene": trainer.dataset.scene_name,
+        "resolution": [frame.width, frame.height],
+        "preset": cfg.preset,
+        "field": cfg.field,
+        "seed": cfg.seed,
+        "iterations": step,
+        "train_seconds": round(seconds, 2),
+        "iterations_per_second": round(step / seconds, 2),
+        "n_gaussians": int(trainer.params["means"].shape[0]),
+        "render_fps": round(trainer.measure_fps(), 2),
+        "psnr": summary["psnr"],
+        "ssim": summary["ssim"],
+        "lpips": summary["lpips"],
+        "lpips_metric": summary.get("lpips_metric"),
+        "evaluation": f"test views at iteration {step} of the {cfg.iterations} planned (cut short by the budget)",
+        "peak_memory_mb": round(torch.cuda.max_memory_allocated() / 2**20, 1),
+    }
+
+
+def run(args: argparse.Namespace) -> int:
+    cfg = run_config(args)
+    dataset = load_dataset(DataConfig(path=args.data, downscale=args.downscale, cache_images=0))
+    frame = dataset.test[0] if dataset.test else dataset.train[0]
+    if args.dry_run:
+        print("\n".join(plan_lines(args, cfg, (frame.width, frame.height), len(dataset.test))))
+        return 0
+    if not torch.cuda.is_available():
+        raise ConfigError("bench gpu needs a CUDA device (this torch sees none); --dry-run checks the plan anywhere")
+    with tempfile.TemporaryDirectory(prefix="liquidgs-gpu-") as scratch:
+        run_dir = args.out or Path(scratch) / "run"
+        record = measure(args, cfg, run_dir)
+    args.output.parent.mkdir(parents=True, exist_ok=True)
+    with args.output.open("a") as file:
+        file.write(json.dumps(record) + "\n")
+    print("\n".join(summary_lines(record)))
+    return 0
+
+
+def main(argv: list[str]) -> int:
+    return run(build_parser().parse_args(argv))
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

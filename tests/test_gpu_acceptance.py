@@ -1,0 +1,89 @@
+"""The GPU acceptance (scripts/gpu_acceptance.sh and `liquidgs bench gpu`): what a CPU can check."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from liquidgs.cli import main as cli
+from liquidgs.data import generate_synthetic
+from liquidgs.train.acceptance import build_parser, summary_lines
+
+ROOT = Path(__file__).resolve().parents[1]
+RECORD = {
+    "device_name": "NVIDIA H200", "torch_version": "2.11.0+cu130", "gsplat_version": "1.5.3",
+    "scene": "hellwarrior", "resolution": [800, 800], "field": "mlp", "iterations": 12345,
+    "train_seconds": 600.4, "iterations_per_second": 20.56, "n_gaussians": 81234, "render_fps": 143.2,
+    "psnr": 38.123, "ssim": 0.98765, "lpips": None, "lpips_metric": None,
+    "evaluation": "test views at iteration 12345 of the 40000 planned (cut short by the budget)",
+}  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory) -> Path:
+    return Path(generate_synthetic("spinner", tmp_path_factory.mktemp("gpu") / "s", size=24, frames=8)) / "dnerf"
+
+
+def test_parser_defaults_are_the_acceptance_run():
+    args = build_parser().parse_args(["--data", "scene"])
+    assert (args.preset, args.field, args.downscale, args.budget_s) == ("dnerf", "mlp", 1, 420.0)
+    assert args.output == Path("benchmarks/gpu.jsonl") and not args.dry_run
+
+
+def test_summary_names_the_gpu_and_labels_the_cut_short_evaluation():
+    lines = summary_lines(RECORD)
+    assert lines[0] == "GPU: NVIDIA H200 (torch 2.11.0+cu130, gsplat 1.5.3)"
+    assert "12345 iterations in 600 s = 20.6 it/s (81,234 Gaussians at the end)" in lines[1]
+    assert lines[2] == "render with the field: 143.2 FPS at 800x800"
+    assert lines[3].startswith("test PSNR 38.12 dB, SSIM 0.9877, LPIPS unavailable - test views at iteration 12345")
+    with_lpips = summary_lines({**RECORD, "lpips": 0.0312, "lpips_metric": "LPIPS-Alex"})
+    assert "LPIPS-Alex 0.0312" in with_lpips[3]
+
+
+def test_dry_run_prints_the_plan_and_writes_nothing(scene, tmp_path, capsys):
+    output = tmp_path / "gpu.jsonl"
+    args = ["bench", "gpu", "--data", str(scene), "--budget-s", "300", "--output", str(output), "--dry-run"]
+    assert cli(args) == 0
+    plan = capsys.readouterr().out
+    assert "(24x24, 1 test views), field mlp, preset dnerf (40000 iterations planned)" in plan
+    assert "train for 300 s" in plan and f"append one JSON line to {output}" in plan
+    assert not output.exists()
+
+
+@pytest.mark.parametrize(
+    ("flags", "words"),
+    [(["--budget-s", "2"], "--budget-s must be at least 10"), (["--fps-frames", "0"], "--fps-frames must be >= 1")],
+)
+def test_bad_arguments_are_one_line(scene, flags, words, capsys):
+    assert cli(["bench", "gpu", "--data", str(scene), "--dry-run", *flags]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and words in err
+
+
+def test_a_machine_without_cuda_is_told_so_and_nothing_is_written(scene, tmp_path, capsys):
+    if __import__("torch").cuda.is_available():
+        pytest.skip("this machine has CUDA")
+    output = tmp_path / "gpu.jsonl"
+    assert cli(["bench", "gpu", "--data", str(scene), "--output", str(output)]) == 2
+    assert "needs a CUDA device" in capsys.readouterr().err
+    assert not output.exists()
+
+
+def test_script_dry_run_lists_every_step(scene):
+    env = {**os.environ, "PYTHON": sys.executable}
+    done = subprocess.run(["bash", "scripts/gpu_acceptance.sh", "--dry-run", str(scene), "600"], cwd=ROOT, env=env,
+                          capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    out = done.stdout
+    assert "from gsplat.cuda._backend import _C" in out and "-m pytest -q -m cuda tests" in out
+    assert "bench gpu --data" in out and "train for 510 s" in out  # 600 s less 90 s for evaluation
+
+
+@pytest.mark.parametrize("args", [[], ["--dry-run", "missing-scene"], ["--dry-run", "tests", "ten"]])
+def test_script_refuses_bad_arguments(args):
+    done = subprocess.run(["bash", "scripts/gpu_acceptance.sh", *args], cwd=ROOT, capture_output=True, text=True)
+    assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1
