@@ -23,6 +23,7 @@ CAMERA_MODEL = "SIMPLE_RADIAL"
 SEQUENTIAL_OVERLAP = 10  # each frame is matched with its next 10 (and, quadratically, 16, 32, ...)
 MIN_REGISTERED_SHARE = 0.5
 MIN_REGISTERED_FRAMES = 4
+MIN_POINTS = 20  # fewer triangulated points than this: no usable geometry
 # COLMAP drops observations above 4 px; a model whose mean is still above this has not settled.
 MAX_MEAN_REPROJECTION_ERROR = 2.0
 SEED = 0
@@ -171,6 +172,14 @@ def check_model(model: pycolmap.Reconstruction, total: int) -> None:
     """Refuse a model with too few frames or one that did not settle."""
     count = model.num_reg_images()
     needed = max(MIN_REGISTERED_FRAMES, int(MIN_REGISTERED_SHARE * total + 0.999))
+    if model.num_points3D() < MIN_POINTS:
+        # Frames registered with (almost) nothing triangulated: every ray pair is parallel, which
+        # is what a camera turning in place gives (measured: 5 of 16 frames, 0 points).
+        raise SolveError(
+            f"COLMAP registered {count} of {total} frames but triangulated only {model.num_points3D()} points: "
+            "the camera seems to turn in place, which gives no depth; walk sideways around the subject while "
+            "filming (a pan from one spot cannot be reconstructed)"
+        )
     if count < needed:
         raise SolveError(
             f"COLMAP registered only {count} of {total} frames (at least {needed} needed); try "

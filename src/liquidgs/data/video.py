@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
+from liquidgs.data.colmap import MIN_REGISTERED_FRAMES
 from liquidgs.data.validate import open_image
 from liquidgs.errors import ConfigError, DataError
 
@@ -122,6 +123,7 @@ def extract_video_frames(
         ffmpeg_logger.setLevel(level)
     if not extracted:
         raise DataError(video, "ffmpeg decoded no frames from it")
+    _check_count(video, extracted, "--fps or --frames")
     log(f"extraction: {len(extracted)} frames saved")
     return extracted
 
@@ -174,8 +176,16 @@ def collect_image_frames(folder: Path, out_dir: Path, *, max_size: int, log: Log
         saved = crop_to_multiple(np.asarray(image))
         Image.fromarray(saved).save(out_dir / f"{frame.id}.png", format="PNG")
         extracted.append(frame)
+    _check_count(folder, extracted, "more images")
     log(f"images: {len(extracted)} frames saved at {saved.shape[1]}x{saved.shape[0]}")
     return extracted
+
+
+def _check_count(source: Path, frames: list[ExtractedFrame], remedy: str) -> None:
+    if len(frames) < MIN_REGISTERED_FRAMES:
+        raise DataError(
+            source, f"gives {len(frames)} frame(s); solving cameras needs at least {MIN_REGISTERED_FRAMES} ({remedy})"
+        )
 
 
 def check_sampling(fps: float | None, frames: int | None, max_size: int) -> None:
@@ -183,7 +193,7 @@ def check_sampling(fps: float | None, frames: int | None, max_size: int) -> None
         raise ConfigError("give --fps or --frames, not both")
     if fps is not None and not (math.isfinite(fps) and fps > 0):
         raise ConfigError(f"--fps must be a positive number, got {fps}")
-    if frames is not None and frames < 2:
-        raise ConfigError(f"--frames must be at least 2, got {frames}")
+    if frames is not None and frames < MIN_REGISTERED_FRAMES:
+        raise ConfigError(f"--frames must be at least {MIN_REGISTERED_FRAMES} (COLMAP needs that many), got {frames}")
     if max_size < 32:
         raise ConfigError(f"--max-size must be at least 32 pixels, got {max_size}")

@@ -1,0 +1,73 @@
+"""Clips COLMAP cannot solve: one line saying what failed and what to try, and no scene left behind.
+
+(A blank wall is in test_data_video.py's bad-input test.)
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from liquidgs.cli import main as cli
+from liquidgs.data.synthetic import render_rgba
+from liquidgs.media import write_video
+from video_scene import BACKGROUND, FOCAL, FPS, HEIGHT, WIDTH, moving_ball, render_handheld_video
+
+
+def turning_in_place(frames: int) -> list[np.ndarray]:
+    """Camera-to-world poses of a camera that stands still and pans 30 degrees."""
+    eye = np.array([0.0, -4.2, 0.4])
+    poses = []
+    for index in range(frames):
+        yaw = math.radians(-15.0 + 30.0 * index / (frames - 1))
+        forward = np.array([math.sin(yaw), math.cos(yaw), -0.05])
+        forward /= np.linalg.norm(forward)
+        right = np.cross(forward, [0.0, 0.0, 1.0])
+        right /= np.linalg.norm(right)
+        pose = np.eye(4)
+        pose[:3, :3] = np.stack([right, np.cross(forward, right), forward], axis=1)
+        pose[:3, 3] = eye
+        poses.append(pose)
+    return poses
+
+
+def one_line_failure(capsys, args: list[str], out: Path) -> str:
+    assert cli([*args, "--out", str(out), "--threads", "1"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "Traceback" not in err, err
+    assert not out.exists() and not list(out.parent.glob(f".{out.name}*"))
+    return err
+
+
+def test_a_camera_turning_in_place_is_named_as_the_cause(tmp_path, capsys):
+    K = np.array([[FOCAL, 0.0, WIDTH / 2], [0.0, FOCAL, HEIGHT / 2], [0.0, 0.0, 1.0]])
+    prims = [moving_ball(0.3), *BACKGROUND]
+    images = [render_rgba(prims, K, pose, WIDTH, HEIGHT, 1)[..., :3] for pose in turning_in_place(16)]
+    clip = tmp_path / "pan.mp4"
+    write_video(clip, images, fps=FPS)
+    err = one_line_failure(capsys, ["data", "video", str(clip), "--frames", "16"], tmp_path / "scene")
+    assert "the camera seems to turn in place" in err and "walk sideways around the subject" in err
+
+
+@pytest.mark.parametrize("frames", ["2", "3"])
+def test_too_few_frames_are_refused_before_colmap(frames, tmp_path, capsys):
+    clip = tmp_path / "clip.mp4"
+    write_video(clip, [np.full((48, 64, 3), 90, np.uint8)] * 6, fps=FPS)
+    err = one_line_failure(capsys, ["data", "video", str(clip), "--frames", frames], tmp_path / "scene")
+    assert f"--frames must be at least 4 (COLMAP needs that many), got {frames}" in err
+
+
+def test_a_three_frame_video_or_image_folder_is_refused(tmp_path, capsys):
+    video = render_handheld_video(tmp_path / "short.mp4", 3)
+    err = one_line_failure(capsys, ["data", "video", str(video.path)], tmp_path / "scene")
+    assert "short.mp4: gives 3 frame(s); solving cameras needs at least 4" in err
+    folder = tmp_path / "images"
+    folder.mkdir()
+    for index, image in enumerate(video.images):
+        Image.fromarray(image).save(folder / f"{index}.png")
+    err = one_line_failure(capsys, ["data", "images", str(folder)], tmp_path / "scene2")
+    assert "gives 3 frame(s); solving cameras needs at least 4 (more images)" in err
