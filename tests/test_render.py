@@ -229,7 +229,8 @@ def test_just_in_front_of_the_near_plane_is_kept():
     camera_to_world = torch.inverse(scene["viewmat"])
     scene["means"] = (camera_to_world[:3, :3] @ torch.tensor([0.0, 0.0, 0.5]) + camera_to_world[:3, 3])[None]
     assert render(scene, near_plane=0.49).info["visible"].item()
-    assert not render(scene, near_plane=0.5).info["visible"].item()
+    assert render(scene, near_plane=0.5).info["visible"].item()  # depth == near: kept, as gsplat's kernel does
+    assert not render(scene, near_plane=0.51).info["visible"].item()
     assert not render(scene, far_plane=0.49).info["visible"].item()
 
 

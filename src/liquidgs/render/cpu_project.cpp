@@ -107,7 +107,7 @@ inline void project_one(const S* mean, const S* quat, const S* scale, const Came
     p.x = cam_point[0];
     p.y = cam_point[1];
     p.z = cam_point[2];
-    p.in_depth = p.z > set.near_plane && p.z <= set.far_plane;
+    p.in_depth = p.z >= set.near_plane && p.z <= set.far_plane;  // gsplat keeps z == near and z == far
     p.z_safe = p.in_depth ? p.z : S(1);
 
     const S w = S(set.width), h = S(set.height);

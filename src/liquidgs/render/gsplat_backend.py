@@ -3,6 +3,15 @@
 It composes gsplat's own pipeline (projection, SH, tile intersection, rasterisation; packed=False,
 classic mode, RGB+ED) so that info["means2d"] is an [N,2] tensor the rasteriser consumes directly,
 which is what makes its .grad and .absgrad meaningful.
+
+Rows of culled Gaussians: gsplat's projection kernel writes only radii = 0 for a Gaussian it culls
+and returns at once, so on a GPU that Gaussian's rows of means2d, depths and conics are uninitialised
+memory (`at::empty`), and so is its SH colour (the SH kernel skips masked rows of an `empty_like`).
+Nothing here reads them: the tile intersection skips radii <= 0, the rasteriser reads only the ids
+it lists, and the backward kernels give culled rows zero gradient (clamp_min's backward is a `where`,
+so even a NaN there passes nothing on). info's means2d / depths / conics keep them: read those only
+where info["visible"]. tests/test_gsplat_cpu.py runs this module on the CPU with those rows set to
+NaN by its kernel stand-ins and checks that images and gradients stay finite and equal.
 """
 
 from __future__ import annotations
@@ -38,10 +47,17 @@ def _probe(device: torch.device) -> str | None:
     return None
 
 
-def unavailable_reason(device: torch.device) -> str | None:
-    """None when gsplat's kernels run on `device`, else why not. Probed once per device, then cached."""
+def unavailable_reason(means: Tensor) -> str | None:
+    """None when gsplat's kernels run on `means`' device and dtype, else why not.
+
+    Probed once per device, then cached. float32 only: rasterize_to_pixels' kernels read float
+    pointers (a float64 tensor stops them with a dtype error), and the wrapper casts alphas to float.
+    """
+    device = means.device
     if device.type != "cuda":
         return f"gsplat has no CPU path and the tensors are on {device.type}"
+    if means.dtype != torch.float32:
+        return f"gsplat's rasteriser kernels take float32 only, the tensors are {means.dtype}"
     key = str(device)
     if key not in _availability:
         _availability[key] = _probe(device)

@@ -64,7 +64,8 @@ def project_gaussians(
 ) -> Projection:
     """Project Gaussians with a pinhole camera (OpenCV axes), culling exactly as gsplat does.
 
-    Culled: depth <= near_plane or > far_plane, 2D determinant <= 0 after the eps2d blur, opacity
+    Culled: depth < near_plane or > far_plane (a depth exactly on either plane is kept, as in gsplat's
+    kernel: `mean_c.z < near_plane || mean_c.z > far_plane`), 2D determinant <= 0 after the eps2d blur, opacity
     below 1/255, or a bounding box entirely outside the image. Radii use gsplat's opacity-aware
     extent min(3.33, sqrt(2 ln(255 opacity))) per axis, rounded up.
     """
@@ -72,7 +73,7 @@ def project_gaussians(
     means_cam = means @ rotation_w2c.T + translation_w2c
     covs_cam = rotation_w2c @ quat_scale_to_covariance(quats, scales) @ rotation_w2c.T
     x, y, z = means_cam.unbind(-1)
-    in_depth_range = (z > near_plane) & (z <= far_plane)
+    in_depth_range = (z >= near_plane) & (z <= far_plane)
     # Culled Gaussians get a harmless depth so no inf/NaN can leak into gradients through them.
     z_safe = torch.where(in_depth_range, z, torch.ones_like(z))
 

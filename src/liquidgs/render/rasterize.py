@@ -83,13 +83,13 @@ def _validate(
 def _resolve_backend(backend: str, means: Tensor) -> str:
     device = means.device
     if backend in ("gsplat", "cpu"):
-        reason = (gsplat_backend.unavailable_reason(device) if backend == "gsplat"
+        reason = (gsplat_backend.unavailable_reason(means) if backend == "gsplat"
                   else cpu_backend.unavailable_reason(means))  # fmt: skip
         if reason is not None:
             raise ValueError(f"backend={backend!r} is unavailable: {reason}; use backend='torch' or 'auto'")
         chosen = backend
     elif backend == "auto":
-        if gsplat_backend.unavailable_reason(device) is None:
+        if gsplat_backend.unavailable_reason(means) is None:
             chosen = "gsplat"
         elif device.type == "cpu" and (reason := cpu_backend.unavailable_reason(means)) is not None:
             cpu_backend.report_fallback(reason)
@@ -138,8 +138,8 @@ def rasterize(
         means [N,3], quats [N,4] (wxyz, any norm), scales [N,3] (std-devs), opacities [N] in [0,1].
         colors: RGB [N,3] when sh_degree is None, else SH coefficients [N,K,3], K >= (sh_degree+1)^2.
         viewmat [4,4]: world-to-camera, OpenCV axes (x right, y down, z forward). K [3,3]: intrinsics.
-        background [3] or None (black). backend: "auto" (gsplat on CUDA when its kernels run; on the
-        CPU the compiled kernel where it builds, else torch), "torch" (the portable reference),
+        background [3] or None (black). backend: "auto" (gsplat on CUDA for float32 when its kernels
+        run; on the CPU the compiled kernel where it builds, else torch), "torch" (the portable reference),
         "cpu" or "gsplat". tile_size (default per backend, DEFAULT_TILE_SIZES) tunes torch and cpu;
         chunk_elements bounds the torch backend's memory.
 
@@ -147,7 +147,9 @@ def rasterize(
     alpha clamped at 1e-10) and info: means2d [N,2] (its .grad is dL/dmeans2d after backward, and
     .absgrad too when absgrad=True), radii [N] int32 (largest per-axis radius, 0 = culled),
     radii_xy [N,2] int32 (gsplat 1.5.3's per-axis radii), visible [N] bool, depths [N], conics
-    [N,3], width, height, n_cameras (1), backend.
+    [N,3], width, height, n_cameras (1), backend. The rows of culled Gaussians in means2d, depths and
+    conics are meaningless (with the gsplat backend on a GPU, uninitialised memory, possibly NaN):
+    read them only where visible. Their .grad / .absgrad rows are zero.
     """
     _validate(means, quats, scales, opacities, colors, viewmat, K, width, height, sh_degree, background, backend)
     if tile_size is not None and (isinstance(tile_size, bool) or not isinstance(tile_size, int) or tile_size < 1):
