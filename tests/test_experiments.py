@@ -20,6 +20,7 @@ from liquidgs.errors import ConfigError, LiquidGSError
 from liquidgs.experiments import BUILTIN_SPECS, expand, load_spec, read_manifest, spec_from_dict, write_manifest
 from liquidgs.experiments.report import write_report
 from liquidgs.experiments.runner import run_experiment
+from liquidgs.experiments.spec import DNERF_SCENES, NERFDS_SCENES
 from liquidgs.train.config import load_yaml
 from shared_data import DNERF_ROOT, require_shared
 
@@ -65,14 +66,58 @@ def write_spec(path: Path, spec: dict) -> Path:
 # ----------------------------------------------------------------------------- specs
 def test_builtin_specs_match_the_paper_grids():
     dnerf = BUILTIN_SPECS["paper-dnerf"].grids[0]
-    assert len(dnerf.scenes) == 8 and dnerf.fields == ("mlp", "cfc", "sde") and dnerf.seeds == (0, 1, 2)
+    assert len(dnerf.scenes) == 8 and dnerf.fields == ("mlp", "cfc", "sde") and dnerf.seeds == (0,)
     assert dnerf.preset == "dnerf" and dnerf.lambdas == (0.05,) and "downscale" not in dnerf.overrides
+    assert BUILTIN_SPECS["paper-dnerf-3seeds"].grids[0].seeds == (0, 1, 2)
     assert len(BUILTIN_SPECS["paper-nerfds"].grids[0].scenes) == 7
+    assert BUILTIN_SPECS["paper-nerfds-3seeds"].grids[0].seeds == (0, 1, 2)
     noise = BUILTIN_SPECS["noise-study"]
     assert {g.dataset for g in noise.grids} == {"dnerf", "nerfds"}
     assert all(g.fields == ("sde",) and g.lambdas == (0.0, 0.05, 0.1, 0.2) for g in noise.grids)
     seeds = BUILTIN_SPECS["seeds"].grids[0]
     assert seeds.scenes == ("hellwarrior",) and seeds.lambdas == (0.0,) and seeds.seeds == (0, 1, 2)
+    # LPIPS as the D-3DGS metrics code computes it ([0,1] inputs, not normalised), in every paper spec.
+    for name in ("paper-dnerf", "paper-dnerf-3seeds", "paper-nerfds", "paper-nerfds-3seeds", "noise-study", "seeds"):
+        assert all(g.overrides["eval.lpips_normalize"] is False for g in BUILTIN_SPECS[name].grids), name
+
+
+def test_paper_tables_and_noise_study_lambda_0_05_are_the_same_runs(tmp_path):
+    """Same configuration, same run folder: paper-dnerf's SDE-LNN runs are noise-study's lambda 0.05 row."""
+    root = tmp_path / "data"
+    for dataset, scenes in (("dnerf", DNERF_SCENES), ("nerfds", NERFDS_SCENES)):
+        for scene in scenes:
+            (root / dataset / scene).mkdir(parents=True)
+    noise = expand(BUILTIN_SPECS["noise-study"], root, tmp_path / "exp" / "noise-study")
+    for dataset in ("dnerf", "nerfds"):
+        paper = expand(BUILTIN_SPECS[f"paper-{dataset}"], root / dataset, tmp_path / "exp" / f"paper-{dataset}")
+        paper_sde = {r.run_dir for r in paper.runs if r.field == "sde"}
+        noise_005 = {r.run_dir for r in noise.runs if r.dataset == dataset and r.lambda_ == 0.05}
+        assert len(paper_sde) == len(paper.runs) // 3 and paper_sde == noise_005
+        spread = expand(BUILTIN_SPECS[f"paper-{dataset}-3seeds"], root / dataset, tmp_path / "exp" / "s")
+        assert {r.run_dir for r in paper.runs} < {r.run_dir for r in spread.runs}  # seed 0 shared too
+
+
+def test_a_run_finished_in_a_sibling_experiment_is_shared_not_retrained(data_root, tmp_path, capsys):
+    experiments = tmp_path / "experiments"
+    first = expand(spec_from_dict(small_spec("first", scenes=["puppet"]), "t"), data_root, experiments / "first")
+    write_manifest(first)
+    assert all(o.status == "done" for o in run_experiment(first, parallel=1))
+    second_spec = small_spec("second", scenes=["puppet"], lambdas=[0.05, 0.1])
+    spec_path = write_spec(tmp_path / "second.yml", second_spec)
+    args = ["experiment", "run", str(spec_path), "--data-root", str(data_root), "--out", str(experiments / "second")]
+    assert cli_main([*args, "--dry-run"]) == 0
+    listing = capsys.readouterr().out
+    assert "3 runs (0 done, 2 finished in another experiment, to be shared)" in listing
+    assert listing.count(" shared ") == 2 and not (experiments / "second").exists()  # the dry run wrote nothing
+    assert cli_main(args) == 0
+    err = capsys.readouterr().err
+    assert "done 1, skipped 2 (finished before)" in err and err.count("finished in first/") == 2
+    second = read_manifest(experiments / "second")
+    for run in second.runs:
+        folder = run.folder(second.directory)
+        assert folder.is_symlink() == (run.lambda_ != 0.1) and (folder / "results.json").is_file()
+    report = write_report(experiments / "second").read_text()
+    assert "3 finished runs" in report, report[:600]  # the two shared runs are read with the new one
     mini = BUILTIN_SPECS["mini"].grids[0]
     assert mini.preset == "tiny" and mini.overrides["downscale"] == 8 and len(mini.scenes) == 4
 

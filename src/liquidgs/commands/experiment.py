@@ -25,7 +25,7 @@ from liquidgs.args import parse_args
 from liquidgs.errors import ConfigError
 from liquidgs.experiments import BUILTIN_SPECS, expand, generate_scenes, load_spec, read_manifest, write_manifest
 from liquidgs.experiments.plan import MANIFEST
-from liquidgs.experiments.runner import RunOutcome, run_experiment
+from liquidgs.experiments.runner import RunOutcome, finished_elsewhere, run_experiment
 
 EXPERIMENTS_ROOT = Path("outputs") / "experiments"
 
@@ -70,10 +70,16 @@ def run(args: RunArgs, console: Console) -> int:
     experiment = expand(spec, args.data_root, experiment_dir(spec.name, args.out))
     done = [r for r in experiment.runs if r.is_done(experiment.directory)]
     if args.dry_run:
+        shared = 0
         for entry in experiment.runs:
-            state = "done" if entry in done else "to run"
-            print(f"{entry.name:<44} {state:<7} {entry.folder(experiment.directory)}")
-        print(f"{len(experiment.runs)} runs ({len(done)} done) in {experiment.directory}; nothing was run (--dry-run)")
+            donor = None if entry in done else finished_elsewhere(entry, experiment.directory)
+            shared += donor is not None
+            state = "done" if entry in done else "shared" if donor is not None else "to run"
+            print(f"{entry.name:<44} {state:<7} {donor or entry.folder(experiment.directory)}")
+        print(
+            f"{len(experiment.runs)} runs ({len(done)} done, {shared} finished in another experiment, to be shared) "
+            f"in {experiment.directory}; nothing was run (--dry-run)"
+        )
         return 0
     write_manifest(experiment)
     for folder in generate_scenes(experiment):
@@ -102,6 +108,9 @@ def run(args: RunArgs, console: Console) -> int:
         run_experiment(experiment, args.executor, args.parallel, args.ray_address, on_outcome=record)
     counts = {status: sum(o.status == status for o in outcomes) for status in ("done", "skipped", "failed")}
     console.print(f"done {counts['done']}, skipped {counts['skipped']} (finished before), failed {counts['failed']}")
+    for outcome in outcomes:
+        if outcome.status == "skipped" and outcome.message:
+            console.print(f"  {outcome.name}: {outcome.message}")
     for outcome in outcomes:
         if outcome.status == "failed":
             console.print(f"  [red]failed[/] {outcome.name}: {outcome.message}\n         log: {outcome.log}")

@@ -23,7 +23,7 @@ from queue import Queue
 
 from liquidgs.errors import ConfigError
 from liquidgs.experiments.plan import Experiment, RunEntry
-from liquidgs.train.trainer import CHECKPOINT
+from liquidgs.train.trainer import CHECKPOINT, RESULTS
 
 LOGS = "logs"
 EXECUTORS = ("local", "ray")
@@ -190,6 +190,36 @@ def run_ray(
             ray.shutdown()
 
 
+def finished_elsewhere(entry: RunEntry, experiment_dir: Path) -> Path | None:
+    """The same run finished in a sibling experiment folder, when this experiment has no folder for it.
+
+    Runs are folders named by their configuration's hash, so the same path under another experiment
+    of the same parent folder (outputs/experiments/noise-study beside .../paper-dnerf) holds the same
+    run. A folder of this experiment's own (an unfinished run) is never replaced, so then None.
+    """
+    directory = Path(experiment_dir)
+    folder = entry.folder(directory)
+    if folder.exists() or folder.is_symlink() or not directory.parent.is_dir():
+        return None
+    siblings = (p for p in sorted(directory.parent.iterdir()) if p.is_dir() and p.resolve() != directory.resolve())
+    return next((p / entry.run_dir for p in siblings if (p / entry.run_dir / RESULTS).is_file()), None)
+
+
+def share_finished_runs(experiment: Experiment) -> list[tuple[str, str]]:
+    """Link each run finished in a sibling experiment (finished_elsewhere) into this one with a
+    relative symlink, so it is read, not trained again. Returns (run name, message) pairs."""
+    directory = Path(experiment.directory)
+    linked = []
+    for entry in experiment.runs:
+        donor = finished_elsewhere(entry, directory)
+        if donor is not None:
+            folder = entry.folder(directory)
+            folder.parent.mkdir(parents=True, exist_ok=True)
+            os.symlink(os.path.relpath(donor, folder.parent), folder)
+            linked.append((entry.name, f"finished in {donor.relative_to(directory.parent)}, shared"))
+    return linked
+
+
 def run_experiment(
     experiment: Experiment,
     executor: str = "local",
@@ -204,8 +234,11 @@ def run_experiment(
     if parallel < 1:
         raise ConfigError(f"--parallel must be >= 1, got {parallel}")
     directory = experiment.directory
+    shared = dict(share_finished_runs(experiment))
     skipped = [
-        RunOutcome(r.name, "skipped", 0.0, str(log_path(directory, r))) for r in experiment.runs if r.is_done(directory)
+        RunOutcome(r.name, "skipped", 0.0, str(log_path(directory, r)), shared.get(r.name, ""))
+        for r in experiment.runs
+        if r.is_done(directory)
     ]
     for outcome in skipped:
         on_outcome(outcome)
