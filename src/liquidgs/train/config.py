@@ -51,6 +51,8 @@ class EvalConfig:
     start: int = 5000
     """First periodic evaluation (D-3DGS: 5k, 6k, 7k, then every 1k)."""
     every: int = 1000
+    also: tuple[int, ...] = ()
+    """Further evaluation iterations; the D-3DGS code's own list is --eval.start 10000 --eval.also 5000 6000 7000."""
     lpips_backbone: Literal["vgg", "alex", "squeeze"] = "vgg"
     lpips_normalize: bool = True
     """True: images scaled to [-1,1] as LPIPS expects. False: the D-3DGS reference's quirk ([0,1] fed in)."""
@@ -99,7 +101,8 @@ class TrainConfig:
     """'frames': 1/N_frames as the paper says; 'stack': 1/(cameras left in the epoch stack) as its code does."""
     checkpoint_every: int = 5000
     divergence_drop_db: float = 10.0
-    """Stop when the smoothed training PSNR falls this far below its best (after warm-up)."""
+    """Stop when the smoothed training PSNR falls this far below its best since the last scheduled
+    disturbance (opacity reset, SH degree step, end of warm-up, densification burst)."""
     field_options: FieldOptions = dataclasses.field(default_factory=FieldOptions)
     """Field sizes and noise variants (name, preset and lambda come from the flags above)."""
     perturb: PerturbConfig = dataclasses.field(default_factory=PerturbConfig)
@@ -253,6 +256,8 @@ def validate(cfg: TrainConfig) -> None:
         raise ConfigError(f"lambda must be a finite number >= 0, got {cfg.lambda_}")
     if cfg.field == "cfc" and cfg.resolved_lambda() != 0.0:
         raise ConfigError("the 'cfc' field is the deterministic cell (lambda = 0); use --field sde for noise")
+    if not all(type(step) is int and 1 <= step <= _INT64_MAX for step in cfg.eval.also):
+        raise ConfigError(f"eval.also must hold iterations >= 1, got {list(cfg.eval.also)}")
     if cfg.downscale is not None and cfg.downscale < 1:
         raise ConfigError(f"downscale must be >= 1, got {cfg.downscale}")
     cfg.field_config()  # the field's own rules, now that its name, preset and lambda are known
@@ -291,6 +296,8 @@ def identity(cfg: TrainConfig) -> dict:
     d["field_options"] = {**_LEGACY_FIELD_OPTIONS, **d["field_options"]}
     if not cfg.perturb.active:
         del d["perturb"]
+    if not cfg.eval.also:  # runs without extra evaluations hash as they did before the setting existed
+        del d["eval"]["also"]
     return d
 
 

@@ -339,7 +339,8 @@ class Trainer:
 
     def is_eval_step(self, step: int) -> bool:
         e = self.cfg.eval
-        return step == self.cfg.iterations or (step >= e.start and (step - e.start) % e.every == 0)
+        periodic = step >= e.start and (step - e.start) % e.every == 0
+        return step == self.cfg.iterations or periodic or step in e.also
 
     def run(self, progress=None) -> dict:
         """Train from self.state.iteration to cfg.iterations; returns results.json's content."""
