@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import re
 import shutil
 import statistics
@@ -17,9 +18,13 @@ from liquidgs.data import generate_synthetic
 from liquidgs.errors import LiquidGSError
 from liquidgs.experiments import Experiment, RunEntry, expand, spec_from_dict, write_manifest
 from liquidgs.experiments.report import write_report
+from liquidgs.experiments.report.aggregate import DatasetScores
+from liquidgs.experiments.report.collect import Method
 from liquidgs.experiments.report.figures import PANEL, crop_window
-from liquidgs.experiments.report.references import paper_targets
+from liquidgs.experiments.report.references import MEAN, paper_targets
 from liquidgs.experiments.report.tables import METRICS, Cell, Row, Table, to_latex
+from liquidgs.experiments.report.write import score_table
+from liquidgs.experiments.spec import PAPER_LAMBDA
 from liquidgs.train.config import preset_config, save_yaml
 from shared_data import PAPER_DIR, optional_lpips_dir, require_shared
 
@@ -38,6 +43,8 @@ def parse_cell(text: str) -> tuple[int | None, float]:
         return RANK_BY_NAME[m[1]], float(m[2])
     if m := re.fullmatch(r"\\cellcolor\{([^}]*)\}(.*)", text):
         return RANK_BY_COLOUR[m[1]], float(m[2].split("$")[0])
+    if text == "-":  # a cell a row has no number for
+        return None, math.nan
     return None, float(text.split("$")[0])
 
 
@@ -90,6 +97,50 @@ def test_colouring_matches_the_papers_tables(label, key):
     ours = to_latex(Table(list(table["scenes"]), METRICS, rows, "", "", label))
     assert len(expected) >= 3 * len(table["scenes"]) * 3 - 5  # the parse found the coloured cells
     assert colouring(ours, methods) == expected
+
+
+def report_colouring(tex: str, names: dict[str, str], scenes: list[str]) -> dict[tuple[str, str, str], int]:
+    """(method, scene, metric) -> rank for the coloured cells of the rows `names` maps (LaTeX label -> method)."""
+    out = {}
+    for titles, rows in parse_blocks(tex):
+        for label, cells in rows:
+            for i, scene in enumerate(scene_key(t) for t in titles):
+                for j, metric in enumerate(("psnr", "ssim", "lpips")):
+                    rank = cells[3 * i + j][0]
+                    if rank is not None:
+                        assert label in names, f"an unranked row is coloured: {label}"
+                        if scene in scenes:
+                            out[(names[label], scene, metric)] = rank
+    return out
+
+
+@pytest.mark.parametrize(("label", "key", "dataset"), [("tab:dnerf", "dnerf_table", "dnerf"),
+                                                       ("tab:nerfds", "nerfds_table", "nerfds")])  # fmt: skip
+def test_with_references_our_rows_are_coloured_as_the_paper_colours_them(label, key, dataset):
+    """The paper's own MLP and SDE-LNN numbers fed to the report as our runs: with --references it ranks
+    them with the baselines the paper quotes (D-NeRF, TiNeuVox, NeRF-DS) and colours exactly the cells
+    the paper's LaTeX colours, its quoted rows included."""
+    table = json.loads(require_shared(TARGETS).read_text())[key]
+    methods, scenes = table["methods"], [s for s in table["scenes"] if s != MEAN]
+    ours = {Method.of("mlp", 0.0): "D-3DGS (MLP)", Method.of("sde", PAPER_LAMBDA): "SDE-LNN"}
+    values = {(method, scene, metric.key): {0: methods[name][scene][i]}
+              for method, name in ours.items() for scene in scenes for i, metric in enumerate(METRICS)}  # fmt: skip
+    scores = DatasetScores(dataset, scenes, sorted(ours), values, [])
+    names = {method.latex_label: name for method, name in ours.items()}
+    names |= {name: name for name in methods if name not in ours.values()}  # the quoted baselines
+    expected = colouring(paper_table(label), methods)
+    printed_scenes = {scene for _, scene, _ in expected}
+    assert len(expected) >= 3 * len(printed_scenes) * 3 - 5  # the parse found the coloured cells
+
+    with_references, _ = score_table(scores, "final", references=True)
+    tex = to_latex(with_references)
+    assert report_colouring(tex, names, sorted(printed_scenes)) == expected
+    assert "Paper: D-3DGS (MLP)" in tex and "D-3DGS published" in tex  # shown, not ranked (checked above)
+    if dataset == "dnerf":
+        # Ranked among our two rows only, lego's PSNR would be SDE-LNN best; the paper has it third.
+        assert expected[("SDE-LNN", "lego", "psnr")] == 2
+        alone, _ = score_table(scores, "final", references=False)
+        assert report_colouring(to_latex(alone), names, ["lego"])[("SDE-LNN", "lego", "psnr")] == 0
 
 
 def test_noise_study_colouring_matches_the_papers_table_iv():
