@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 from liquidgs.experiments.report.collect import Collection, Method, RunRecord
 from liquidgs.experiments.report.references import MEAN, paper_sigma
+from liquidgs.experiments.report.significance import CONFIDENCE, MIN_CLUSTERS, TOO_FEW, cluster_difference
 from liquidgs.experiments.report.tables import METRICS
 
 TIE_SIGMAS = 2.0
@@ -107,18 +108,35 @@ def tie_sigma(spreads: list[Spread]) -> tuple[float, str]:
     return pooled, f"pooled over {len(variances)} scene/method cells with several seeds (measured here)"
 
 
-def lead_sentence(subject: str, ranked: list[tuple[Method, float]], sigma: float) -> str:
-    """Who leads on PSNR, by how much, and whether the lead is a tie under the 2-sigma rule."""
+def paired_psnr_differences(scores: DatasetScores, scene: str, a: Method, b: Method) -> list[float]:
+    """PSNR of a minus b per (scene, seed) both have: the clusters behind a lead (every scene for MEAN)."""
+    out = []
+    for name in scores.scenes if scene == MEAN else [scene]:
+        va, vb = scores.values.get((a, name, "psnr"), {}), scores.values.get((b, name, "psnr"), {})
+        out += [va[seed] - vb[seed] for seed in sorted(set(va) & set(vb))]
+    return out
+
+
+def lead_sentence(subject: str, ranked: list[tuple[Method, float]], sigma: float, paired: list[float]) -> str:
+    """Who leads on PSNR, by how much, and whether the lead is called a lead, a tie or too few to call.
+
+    `paired`: the leader minus the runner-up per (scene, seed). A lead needs at least MIN_CLUSTERS of
+    them and their t-interval wholly above TIE_SIGMAS sigma (significance.py)."""
     if len(ranked) < 2:
         if not ranked:
             return f"{subject}: no method has scores yet; no comparison."
         return f"{subject}: only {ranked[0][0].label} has scores; no comparison."
     (first, a), (second, b) = ranked[0], ranked[1]
     gap = a - b
-    verdict = "a tie" if gap < TIE_SIGMAS * sigma else "a lead"
-    return (
-        f"{subject}: {first.label} leads with {a:.2f} dB, {gap:.2f} dB ahead of {second.label} ({b:.2f} dB); "
-        f"under the {TIE_SIGMAS:g}-sigma rule ({TIE_SIGMAS:g} sigma = {TIE_SIGMAS * sigma:.2f} dB) this is {verdict}."
+    head = f"{subject}: {first.label} leads with {a:.2f} dB, {gap:.2f} dB ahead of {second.label} ({b:.2f} dB); "
+    runs = f"{len(paired)} paired scene-seed run{'s' if len(paired) != 1 else ''}"
+    if len(paired) < MIN_CLUSTERS:
+        return head + f"{runs}, fewer than the {MIN_CLUSTERS} a call needs: {TOO_FEW}."
+    diff = cluster_difference(paired, TIE_SIGMAS * sigma)
+    verdict = "a lead" if diff.verdict == "helps" else "a tie"
+    return head + (
+        f"over {runs}, {CONFIDENCE:.0%} t-interval {diff.interval_text(2)} dB; under the ties rule (the interval "
+        f"wholly above {TIE_SIGMAS:g} sigma = {TIE_SIGMAS * sigma:.2f} dB) this is {verdict}."
     )
 
 

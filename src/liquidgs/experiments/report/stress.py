@@ -2,8 +2,11 @@
 
 For each perturbation: test PSNR against its strength per field configuration (one PNG), a
 table of each sde variant minus the deterministic CfC at each strength with a paired
-confidence interval (significance.py), and one sentence saying where noise helps, hurts or ties.
-The clean runs (strength 0) are shared by every perturbation.
+confidence interval over the scene-seed clusters (significance.py), and one sentence saying
+where noise helps, hurts, ties, or rests on too few runs to call. A difference is called only
+on at least MIN_CLUSTERS clusters, where its t-interval lies wholly beyond the ties rule's
+2 sigma (sigma: the CfC's run-to-run PSNR spread over seeds in this experiment). The clean runs
+(strength 0) are shared by every perturbation.
 """
 
 from __future__ import annotations
@@ -15,13 +18,19 @@ from pathlib import Path
 import numpy as np
 
 from liquidgs.experiments.plan import RunEntry
+from liquidgs.experiments.report.aggregate import TIE_SIGMAS
 from liquidgs.experiments.report.collect import Collection, RunRecord
 from liquidgs.experiments.report.figures import save_plot
+from liquidgs.experiments.report.references import paper_sigma
 from liquidgs.experiments.report.significance import (
     CONFIDENCE,
+    MIN_CLUSTERS,
+    TOO_FEW,
     PairedDifference,
     paired_difference,
     per_view_differences,
+    pooled_sigma,
+    smallest_sign_flip_p,
 )
 from liquidgs.experiments.report.tables import PlainTable
 from liquidgs.experiments.spec import Variant
@@ -88,8 +97,29 @@ def psnr_curve(collection: Collection, perturb: str, variant: str, evaluation: s
     return points
 
 
-def compare(collection: Collection, perturb: str) -> list[Comparison]:
-    """Each sde variant minus the CfC at each strength, paired by scene, seed and test view."""
+def tie_floor(collection: Collection) -> tuple[float, str]:
+    """(TIE_SIGMAS x sigma, where sigma comes from): the interval must lie beyond +-floor for a verdict.
+
+    sigma is the run-to-run PSNR spread of the deterministic baseline, as the paper's own sigma is
+    (its calibration retrains the lambda-0 model, the CfC): the sample variance of the final PSNR
+    over the seeds, pooled over every baseline cell (dataset, scene, perturbation, strength) with at
+    least two seeds; with one seed per cell, the paper's sigma."""
+    cells: dict[tuple, list[float]] = defaultdict(list)
+    for run in collection.finished:
+        e = run.entry
+        if e.label == BASELINE:
+            cells[(e.dataset, e.scene, e.perturb, e.strength)].append(run.evaluation("final")["psnr"])
+    sigma, count, runs = pooled_sigma(list(cells.values()))
+    if sigma is None:
+        sigma, source = paper_sigma()
+        return TIE_SIGMAS * sigma, f"sigma = {sigma:.3f} dB: one seed per {BASELINE} cell here, so {source}"
+    measured = f"the {BASELINE}'s seed-to-seed PSNR spread, pooled over {count} cells of {runs} runs, measured here"
+    return TIE_SIGMAS * sigma, f"sigma = {sigma:.3f} dB: {measured}"
+
+
+def compare(collection: Collection, perturb: str, floor: float = 0.0) -> list[Comparison]:
+    """Each sde variant minus the CfC at each strength, paired by scene, seed and test view; a
+    difference is called only where its interval lies beyond +-`floor` dB."""
     comparisons = []
     for strength in strengths(collection, perturb):
         runs = _runs_at(collection, perturb, strength)
@@ -105,28 +135,42 @@ def compare(collection: Collection, perturb: str) -> list[Comparison]:
                 clusters[run.entry.label].append(per_view_differences(run.per_view, baseline[key]))
         for variant, diffs in clusters.items():
             if any(len(d) for d in diffs):
-                comparisons.append(Comparison(variant, strength, paired_difference(diffs)))
+                comparisons.append(Comparison(variant, strength, paired_difference(diffs, floor)))
     return comparisons
 
 
 def verdict_sentence(perturb: str, comparisons: list[Comparison]) -> str:
-    """Where noise helps, hurts and ties under one perturbation, in words."""
+    """Where noise helps, hurts and ties under one perturbation, in words; comparisons on fewer than
+    MIN_CLUSTERS clusters are counted as too few runs to call, never as ties."""
+    subject = perturb.replace("_", " ")
     if not comparisons:
-        return f"{perturb}: no sde variant has a finished CfC run to be compared with."
+        return f"{subject}: no sde variant has a finished CfC run to be compared with."
+    called = [c for c in comparisons if c.difference.verdict != TOO_FEW]
+    too_few = len(comparisons) - len(called)
+    if not called:
+        counts = sorted({c.difference.clusters for c in comparisons})
+        listed = " or ".join(map(str, counts))
+        return (
+            f"{subject}: {TOO_FEW}: every comparison rests on {listed} scene-seed cluster"
+            f"{'s' if counts != [1] else ''}, fewer than the {MIN_CLUSTERS} a verdict needs."
+        )
 
     def listed(verdict: str) -> list[str]:
         return [
             f"{c.variant} at {c.strength:g} ({c.difference.mean:+.2f} dB)"
-            for c in comparisons
+            for c in called
             if c.difference.verdict == verdict
         ]
 
     helps, hurts = listed("helps"), listed("hurts")
-    ties = sum(c.difference.verdict == "tie" for c in comparisons)
+    ties = sum(c.difference.verdict == "tie" for c in called)
     parts = [f"noise helps: {', '.join(helps)}" if helps else "noise helps nowhere"]
     parts.append(f"it hurts: {', '.join(hurts)}" if hurts else "it hurts nowhere")
-    parts.append(f"{ties} of {len(comparisons)} comparisons are ties (the interval includes 0)")
-    return f"{perturb.replace('_', ' ')}: " + "; ".join(parts) + "."
+    parts.append(f"{ties} of {len(called)} comparisons are ties (the interval reaches within {TIE_SIGMAS:g} sigma "
+                 "of 0)")  # fmt: skip
+    if too_few:
+        parts.append(f"{too_few} more rest on fewer than {MIN_CLUSTERS} scene-seed clusters: {TOO_FEW}")
+    return f"{subject}: " + "; ".join(parts) + "."
 
 
 def strength_plot(path: Path, perturb: str, curves: dict[str, list[tuple[float, float, float | None]]]) -> Path:
@@ -147,13 +191,20 @@ def strength_plot(path: Path, perturb: str, curves: dict[str, list[tuple[float, 
 
 
 def stress_section(collection: Collection, evaluation: str, out_dir: Path, md: list[str]) -> None:
+    floor, floor_source = tie_floor(collection)
     md += [
         "## Stress tests: does the noise help?",
         "",
         f"Each sde variant minus the deterministic CfC ({BASELINE}), paired on the same scene, seed and "
-        f"perturbation and matched by test view (final evaluation, per_view.json). Interval: "
-        f"{CONFIDENCE:.0%} two-level bootstrap (resampling the scene-seed pairs, then their test views); "
-        "**significant** only where it excludes 0. Strength 0 is the clean run every perturbation shares.",
+        "perturbation and matched by test view (final evaluation, per_view.json). A scene-seed pair of runs is one "
+        "cluster (its test views share the runs' training, so they are not independent) and counts by its mean "
+        f"difference. Interval: {CONFIDENCE:.0%} Student t-interval on the cluster means (n - 1 degrees of "
+        f"freedom). Verdict: under {MIN_CLUSTERS} clusters, **{TOO_FEW}** (no distribution-free test can call a "
+        f"difference on fewer: a sign test's smallest p-value is {smallest_sign_flip_p(MIN_CLUSTERS - 1):.4g} on "
+        f"{MIN_CLUSTERS - 1}); from {MIN_CLUSTERS} on, **helps** / **hurts** where the whole interval lies above / "
+        f"below the ties rule's {TIE_SIGMAS:g} sigma = {floor:.3f} dB ({floor_source}; the paper reads differences "
+        "under 2 sigma as ties, and a change of machine alone moves a run by about a seed's spread), else tie. "
+        "Strength 0 is the clean run every perturbation shares.",
         "",
     ]
     for perturb in perturbations(collection):
@@ -167,13 +218,14 @@ def stress_section(collection: Collection, evaluation: str, out_dir: Path, md: l
                 "scenes) against strength; error bars: std over seeds (none where one seed finished).",
                 "",
             ]
-        comparisons = compare(collection, perturb)
-        table = PlainTable(["variant", "strength", "minus CfC (dB)", f"{CONFIDENCE:.0%} interval", "pairs", "verdict"])
+        comparisons = compare(collection, perturb, floor)
+        table = PlainTable(["variant", "strength", "minus CfC (dB)", f"{CONFIDENCE:.0%} interval",
+                            "clusters (views)", "verdict"])  # fmt: skip
         for c in comparisons:
             d = c.difference
-            verdict = f"**{d.verdict}**" if d.verdict != "tie" else "tie"
-            table.add(c.variant, c.variant, [f"{c.strength:g}", f"{d.mean:+.3f}", f"[{d.low:+.3f}, {d.high:+.3f}]",
-                                             f"{d.pairs} ({d.clusters} runs)", verdict])  # fmt: skip
+            verdict = f"**{d.verdict}**" if d.verdict in ("helps", "hurts") else d.verdict
+            table.add(c.variant, c.variant, [f"{c.strength:g}", f"{d.mean:+.3f}", d.interval_text(),
+                                             f"{d.clusters} ({d.pairs} views)", verdict])  # fmt: skip
         if comparisons:
             md += [table.to_markdown()]
         md += [verdict_sentence(perturb, comparisons), ""]

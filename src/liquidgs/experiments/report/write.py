@@ -16,6 +16,7 @@ from liquidgs.experiments.report.aggregate import (
     lead_sentence,
     leaders,
     lpips_description,
+    paired_psnr_differences,
     seed_spreads,
     tie_sigma,
 )
@@ -28,6 +29,7 @@ from liquidgs.experiments.report.references import (
     reference_scenes,
 )
 from liquidgs.experiments.report.references import references as reference_rows
+from liquidgs.experiments.report.significance import CONFIDENCE, MIN_CLUSTERS, TOO_FEW
 from liquidgs.experiments.report.stress import is_paper_run, perturbations, stress_section
 from liquidgs.experiments.report.tables import (
     MARKDOWN_LEGEND,
@@ -150,12 +152,21 @@ def _spread_section(scores: DatasetScores, md: list[str]) -> None:
         "",
         table.to_markdown(),
         f"Ties rule: differences under {TIE_SIGMAS:g} sigma are ties, as the paper reads its results; "
-        f"sigma = {sigma:.3f} dB, {source}.",
+        f"sigma = {sigma:.3f} dB, {source}. A lead is called only on at least {MIN_CLUSTERS} paired "
+        f"scene-seed runs of the two methods (the leader minus the runner-up per scene and seed), when their "
+        f"{CONFIDENCE:.0%} Student t-interval lies wholly above {TIE_SIGMAS:g} sigma; on fewer it is "
+        f"'{TOO_FEW}' (why: significance.py).",
         "",
-        "- " + lead_sentence("Dataset mean", leaders(scores, MEAN), sigma),
-        *("- " + lead_sentence(scene, leaders(scores, scene), sigma) for scene in scores.scenes),
+        "- " + _lead(scores, MEAN, "Dataset mean", sigma),
+        *("- " + _lead(scores, scene, scene, sigma) for scene in scores.scenes),
         "",
     ]
+
+
+def _lead(scores: DatasetScores, scene: str, subject: str, sigma: float) -> str:
+    ranked = leaders(scores, scene)
+    paired = paired_psnr_differences(scores, scene, ranked[0][0], ranked[1][0]) if len(ranked) > 1 else []
+    return lead_sentence(subject, ranked, sigma, paired)
 
 
 def _cost_section(scores: DatasetScores, references: bool, md: list[str], tex: list[str]) -> None:
