@@ -6,6 +6,11 @@ registered; after a similarity onto the truth, the camera centres are off by 0.0
 here); 0.0071-0.0076 and 0.33 degrees with all cores. The focal length (190 px) is the loosest:
 196.0 px with one thread, 202.8 with all cores, as it trades off against the fitted radial
 distortion on a 56-degree field of view. The tolerances leave 2-3x room on the worst.
+
+The same video rendered through a phone-like barrel lens (SIMPLE_RADIAL, k1 = -0.15; 16 frames):
+COLMAP recovers the lens, `data video` undistorts the frames into a pinhole camera (camera files
+with zero distortion), `--keep-distortion` keeps them and k1, and `data undistort` on the kept
+scene writes the same scene as the default run.
 """
 
 from __future__ import annotations
@@ -26,9 +31,10 @@ from liquidgs.cli import main as cli
 from liquidgs.data import DataConfig, check_dataset, load_dataset
 from liquidgs.data.capture import CaptureSettings, capture_scene
 from liquidgs.data.colmap import SolveOptions
+from liquidgs.data.synthetic import render_rgba
 from liquidgs.data.video import extract_video_frames
 from liquidgs.media import write_video
-from video_scene import FOCAL, render_handheld_video
+from video_scene import FOCAL, Lens, render_handheld_video, scene_at
 
 FRAMES = 32
 MAX_PATH_ERROR = 0.005  # aligned camera-centre RMSE, as a share of the true path's length
@@ -36,6 +42,8 @@ MAX_ROTATION_ERROR_DEG = 1.0
 MAX_FOCAL_ERROR = 0.15
 IMAGES = 20  # the image-folder run: the first 20 frames, and a blank one among them
 BLANK_AT = 10
+PHONE_LENS = Lens(k1=-0.15)  # barrel distortion as a phone's main camera shows it; SIMPLE_RADIAL's model
+DISTORTED_FRAMES = 16
 
 
 def run_cli(args: list[str]) -> tuple[int, str, str]:
@@ -78,11 +86,30 @@ def image_scene(handheld, tmp_path_factory):
             Image.fromarray(handheld.images[source]).save(images / name)
             Image.fromarray(handheld.dynamic_masks[source].astype(np.uint8) * 255).save(masks / name)
     out = root / "scene"
+    # --keep-distortion: the keypoints stay where COLMAP found them, on the frames as rendered, so
+    # that they can be checked against the rendered masks.
     code, stdout, stderr = run_cli(
-        ["data", "images", str(images), "--out", str(out), "--mask-dynamic", str(masks), "--threads", "1"]
-    )
+        ["data", "images", str(images), "--out", str(out), "--mask-dynamic", str(masks), "--threads", "1",
+         "--keep-distortion"]
+    )  # fmt: skip
     assert code == 0, stderr
     return out, stdout, sources
+
+
+@pytest.fixture(scope="module")
+def distorted_scenes(tmp_path_factory):
+    """The handheld video through PHONE_LENS, made into a scene by default and with --keep-distortion."""
+    root = tmp_path_factory.mktemp("distorted")
+    video = render_handheld_video(root / "phone.mp4", DISTORTED_FRAMES, PHONE_LENS)
+    scenes, stdouts = {}, {}
+    for name, extra in (("undistorted", []), ("kept", ["--keep-distortion"])):
+        scenes[name] = root / name
+        code, stdouts[name], stderr = run_cli(
+            ["data", "video", str(video.path), "--out", str(scenes[name]), "--frames", str(DISTORTED_FRAMES),
+             "--max-size", "200", "--threads", "1", *extra]
+        )  # fmt: skip
+        assert code == 0, stderr
+    return video, scenes, stdouts
 
 
 def similarity(source: np.ndarray, target: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
@@ -124,24 +151,28 @@ def test_every_frame_is_registered_and_the_stages_report_counts(video_scene):
     assert not [p for p in out.parent.iterdir() if ".partial-" in p.name]
 
 
+def orientation_errors(scene: Path, truth: np.ndarray, frame_of_id) -> np.ndarray:
+    """Degrees between each camera's orientation and the truth's, after the best common rotation."""
+    # With x_true = s R x_ours + t, the true world->camera rotation is ours times R^T. R from the
+    # orientations themselves (the centres lie near a plane, which leaves it loose).
+    ids, _, orientations = cameras(scene)
+    truths = truth[[frame_of_id(i) for i in ids], :3, :3].transpose(0, 2, 1)
+    u, _, vt = np.linalg.svd(np.einsum("nji,njk->ik", truths, orientations))
+    rotation = u @ np.diag([1.0, 1.0, np.linalg.det(u @ vt)]) @ vt
+    cosines = (np.einsum("nji,njk,lk->nil", truths, orientations, rotation).trace(axis1=1, axis2=2) - 1.0) / 2.0
+    return np.degrees(np.arccos(np.clip(cosines, -1.0, 1.0)))
+
+
 def test_camera_centres_and_orientations_match_the_truth_after_a_similarity(video_scene, handheld):
     out, _ = video_scene
     rmse, path_length = centre_error(out, handheld.cam_to_world, int)
     print(f"aligned camera-centre RMSE {rmse:.4f} over a path of {path_length:.3f}")
     assert rmse <= MAX_PATH_ERROR * path_length, (rmse, path_length)
-
-    # Orientations: with x_true = s R x_ours + t, the true world->camera rotation is ours times R^T.
-    # R from the orientations themselves (the centres lie near a plane, which leaves it loose).
-    ids, _, orientations = cameras(out)
-    truths = handheld.cam_to_world[[int(i) for i in ids], :3, :3].transpose(0, 2, 1)
-    u, _, vt = np.linalg.svd(np.einsum("nji,njk->ik", truths, orientations))
-    rotation = u @ np.diag([1.0, 1.0, np.linalg.det(u @ vt)]) @ vt
-    cosines = (np.einsum("nji,njk,lk->nil", truths, orientations, rotation).trace(axis1=1, axis2=2) - 1.0) / 2.0
-    errors = np.degrees(np.arccos(np.clip(cosines, -1.0, 1.0)))
+    errors = orientation_errors(out, handheld.cam_to_world, int)
     print("orientation errors (deg):", errors.max())
     assert errors.max() <= MAX_ROTATION_ERROR_DEG, errors
 
-    focal = json.loads((out / "camera" / f"{ids[0]}.json").read_text())["focal_length"]
+    focal = json.loads((out / "camera" / "000000.json").read_text())["focal_length"]
     assert abs(focal / FOCAL - 1.0) <= MAX_FOCAL_ERROR, focal
 
 
@@ -149,13 +180,15 @@ def test_times_follow_frame_order_and_data_check_passes_at_every_scale(video_sce
     out, _ = video_scene
     metadata = json.loads((out / "metadata.json").read_text())
     assert [metadata[i]["time_id"] for i in sorted(metadata)] == list(range(FRAMES))
+    width, height = json.loads((out / "camera" / "000000.json").read_text())["image_size"]
+    assert width % 4 == 0 and height % 4 == 0 and width <= 200 * 1.1 and height <= 152 * 1.1, (width, height)
     for downscale in (1, 2, 4):
         report = check_dataset(DataConfig(path=out, downscale=downscale))
         frames = sorted(report.dataset.train + report.dataset.test, key=lambda frame: frame.name)
         times = [frame.time for frame in frames]
         assert times == pytest.approx([n / (FRAMES - 1) for n in range(FRAMES)])
         assert report.images_decoded == FRAMES
-        assert (frames[0].width, frames[0].height) == (200 // downscale, 152 // downscale)
+        assert (frames[0].width, frames[0].height) == (width // downscale, height // downscale)
     dataset = json.loads((out / "dataset.json").read_text())
     assert dataset["val_ids"] == [f"{n:06d}" for n in range(4, FRAMES, 8)]  # every 8th, stated in the README
     assert json.loads((out / "capture.json").read_text())["holdout_every"] == 8
@@ -169,7 +202,8 @@ def test_an_image_folder_drops_the_frame_colmap_cannot_register_and_keeps_the_ot
     assert capture["dropped"] == [{"id": f"{BLANK_AT:06d}", "source": f"frame{BLANK_AT}.png"}], capture
     assert f"done: {IMAGES - 1}/{IMAGES} frames registered (1 dropped" in stdout
     assert f"dropped: frame{BLANK_AT}.png" in stdout
-    dataset = load_dataset(DataConfig(path=out))
+    with pytest.warns(UserWarning, match="nonzero lens distortion"):  # made with --keep-distortion
+        dataset = load_dataset(DataConfig(path=out))
     times = {frame.name: frame.time for frame in dataset.train + dataset.test}
     assert len(times) == IMAGES - 1 and f"{BLANK_AT:06d}" not in times
     assert times == pytest.approx({f"{n:06d}": n / (IMAGES - 1) for n in range(IMAGES) if n != BLANK_AT})
@@ -278,7 +312,7 @@ def test_a_short_training_on_the_scene_beats_the_static_model(video_scene, tmp_p
 def test_bad_image_folders_and_masks_are_one_line_naming_the_file(handheld, tmp_path):
     images = tmp_path / "images"
     images.mkdir()
-    for n in range(3):
+    for n in range(4):  # the fewest frames COLMAP is run on
         Image.fromarray(handheld.images[n]).save(images / f"{n}.png")
     masks = tmp_path / "masks"
     masks.mkdir()
@@ -310,3 +344,109 @@ def test_an_interrupt_mid_run_leaves_no_scene_and_no_partial_folder(handheld, tm
     with pytest.raises(KeyboardInterrupt):
         capture_scene(images, tmp_path / "scene", settings, interrupt_at_features, video=False)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["images"]
+
+
+def camera_files(scene: Path) -> dict[str, dict]:
+    ids = json.loads((scene / "dataset.json").read_text())["ids"]
+    return {image_id: json.loads((scene / "camera" / f"{image_id}.json").read_text()) for image_id in ids}
+
+
+def border_and_centre_error(scene: Path, video, frame_ids: list[str]) -> tuple[float, float]:
+    """Mean |frame - pinhole render of the true camera with the scene's intrinsics| (8-bit levels)
+    in a 25-30 px band along the border and inside it, over the given frames."""
+    border, centre = [], []
+    for image_id in frame_ids:
+        camera = json.loads((scene / "camera" / f"{image_id}.json").read_text())
+        (width, height), focal, (cx, cy) = camera["image_size"], camera["focal_length"], camera["principal_point"]
+        K = np.array([[focal, 0.0, cx], [0.0, focal * camera["pixel_aspect_ratio"], cy], [0.0, 0.0, 1.0]])
+        frame = int(image_id)
+        truth = render_rgba(scene_at(frame / (DISTORTED_FRAMES - 1)), K, video.cam_to_world[frame], width, height, 3)
+        image = np.asarray(Image.open(scene / "rgb" / "1x" / f"{image_id}.png"), dtype=float)
+        error = np.abs(image - truth[..., :3]).mean(axis=-1)
+        band = np.ones_like(error, dtype=bool)
+        band[25:-25, 30:-30] = False
+        border.append(error[band].mean())
+        centre.append(error[~band].mean())
+    return float(np.mean(border)), float(np.mean(centre))
+
+
+def test_a_distorted_video_gives_pinhole_cameras_and_undistorted_frames(distorted_scenes):
+    video, scenes, stdouts = distorted_scenes
+    out = scenes["undistorted"]
+    files = camera_files(out)
+    assert len(files) == DISTORTED_FRAMES
+    width, height = files["000000"]["image_size"]
+    for camera in files.values():
+        assert camera["radial_distortion"] == [0.0, 0.0, 0.0] and camera["tangential_distortion"] == [0.0, 0.0]
+        assert camera["image_size"] == [width, height] and camera["pixel_aspect_ratio"] == 1.0
+        assert camera["focal_length"] == pytest.approx(FOCAL, rel=0.03)
+    # Undistorting a barrel lens stretches the edges out: the valid pixels span a wider image.
+    assert width % 4 == 0 and height % 4 == 0 and width > 200 and height >= 148, (width, height)
+    capture = json.loads((out / "capture.json").read_text())
+    lens = capture["undistortion"]["from"]
+    assert lens["model"] == "SIMPLE_RADIAL" and lens["params"][3] == pytest.approx(PHONE_LENS.k1, abs=0.03), lens
+    assert capture["undistortion"]["to"]["size"] == capture["image_size"] == [width, height]
+    assert "undistortion: SIMPLE_RADIAL 200x152" in stdouts["undistorted"]
+    report = check_dataset(DataConfig(path=out, downscale=4))
+    assert report.dataset.warnings == [] and (report.dataset.train[0].width, report.dataset.train[0].height) == (
+        width // 4,
+        height // 4,
+    )
+
+    rmse, path_length = centre_error(out, video.cam_to_world, int)
+    assert rmse <= MAX_PATH_ERROR * path_length, (rmse, path_length)
+    assert orientation_errors(out, video.cam_to_world, int).max() <= MAX_ROTATION_ERROR_DEG
+
+    # Each frame against a pinhole render of its true camera with the written intrinsics. Near the
+    # border, where the lens moved pixels by 4-8 px, the undistorted frames match it nearly as well
+    # as at the centre (where H.264 and COLMAP's focal length set the floor); the frames kept
+    # distorted, which training would treat as pinhole, do not.
+    frame_ids = ["000000", "000005", "000010", "000015"]
+    border, centre = border_and_centre_error(out, video, frame_ids)
+    kept_border, kept_centre = border_and_centre_error(scenes["kept"], video, frame_ids)
+    print(f"undistorted: border {border:.2f}, centre {centre:.2f}; kept: border {kept_border:.2f}, "
+          f"centre {kept_centre:.2f}")  # fmt: skip
+    assert border <= centre + 5.0 and kept_border >= border + 5.0, (border, centre, kept_border, kept_centre)
+
+
+def test_keep_distortion_keeps_the_frames_the_lens_and_the_same_poses(distorted_scenes):
+    _, scenes, _ = distorted_scenes
+    kept, undistorted = camera_files(scenes["kept"]), camera_files(scenes["undistorted"])
+    assert kept.keys() == undistorted.keys()
+    for image_id, camera in kept.items():
+        assert camera["radial_distortion"][0] == pytest.approx(PHONE_LENS.k1, abs=0.03), camera
+        assert camera["image_size"] == [200, 152] and camera["principal_point"] == [100.0, 76.0]
+        # Undistortion moves pixels, not cameras.
+        assert camera["orientation"] == undistorted[image_id]["orientation"]
+        assert camera["position"] == undistorted[image_id]["position"]
+        assert camera["focal_length"] == undistorted[image_id]["focal_length"]
+    assert np.array_equal(np.load(scenes["kept"] / "points.npy"), np.load(scenes["undistorted"] / "points.npy"))
+    assert json.loads((scenes["kept"] / "capture.json").read_text())["undistortion"] is None
+    assert Image.open(scenes["kept"] / "rgb" / "1x" / "000000.png").size == (200, 152)
+    warnings = check_dataset(DataConfig(path=scenes["kept"])).dataset.warnings
+    assert any("nonzero lens distortion" in warning for warning in warnings), warnings
+
+
+def test_data_undistort_of_the_kept_scene_writes_the_default_scene(distorted_scenes, tmp_path):
+    _, scenes, _ = distorted_scenes
+    out = tmp_path / "undistorted-later"
+    code, stdout, stderr = run_cli(["data", "undistort", str(scenes["kept"]), "--out", str(out)])
+    assert code == 0, stderr
+    assert f"done: {DISTORTED_FRAMES} frames undistorted into pinhole cameras" in stdout
+    assert "not carried over" in stdout and "capture.json, colmap/" in stdout
+    default = scenes["undistorted"]
+    later, direct = camera_files(out), camera_files(default)
+    assert later.keys() == direct.keys()
+    for image_id, camera in later.items():
+        for key, value in camera.items():
+            assert np.allclose(value, direct[image_id][key], rtol=1e-9, atol=1e-9), (image_id, key)
+        for factor in (1, 2, 4):
+            ours = np.asarray(Image.open(out / "rgb" / f"{factor}x" / f"{image_id}.png"), dtype=int)
+            theirs = np.asarray(Image.open(default / "rgb" / f"{factor}x" / f"{image_id}.png"), dtype=int)
+            assert ours.shape == theirs.shape and np.abs(ours - theirs).max() <= 1, (image_id, factor)
+    for name in ("dataset.json", "metadata.json", "scene.json", "points.npy"):
+        assert (out / name).read_bytes() == (scenes["kept"] / name).read_bytes(), name
+    assert sorted(p.name for p in out.iterdir()) == ["camera", "dataset.json", "metadata.json", "points.npy",
+                                                      "rgb", "scene.json"]  # fmt: skip
+    code, stdout, _ = run_cli(["data", "check", str(out)])
+    assert code == 0 and "all OK" in stdout

@@ -1,5 +1,6 @@
-"""`liquidgs data {synth,check,video,images}`: generate built-in synthetic scenes, validate dataset
-folders, and turn your own video or image folder into a scene (cameras solved by COLMAP)."""
+"""`liquidgs data {synth,check,video,images,undistort}`: generate built-in synthetic scenes, validate
+dataset folders, turn your own video or image folder into a scene (cameras solved by COLMAP, frames
+undistorted into pinhole cameras), and undistort an existing Nerfies-layout scene."""
 
 from __future__ import annotations
 
@@ -67,6 +68,10 @@ class CaptureArgs:
     """Test split: of the registered frames in time order, every K-th (the K/2-th, then every K) is held out."""
     threads: int = -1
     """CPU threads for COLMAP (-1: all cores)."""
+    keep_distortion: bool = False
+    """Keep the frames as decoded and COLMAP's radial distortion k1 in the camera files (trained as if
+    pinhole). By default the frames are undistorted into a pinhole camera by COLMAP's undistorter, the
+    border cropped to valid pixels (and to sides divisible by 4), and the camera files carry no distortion."""
 
 
 @dataclass(kw_only=True)
@@ -87,6 +92,17 @@ class ImagesArgs(CaptureArgs):
 
     images: tyro.conf.Positional[Path]
     """Folder of .png/.jpg images, all the same size."""
+
+
+@dataclass(kw_only=True)
+class UndistortArgs:
+    """A Nerfies/HyperNeRF scene whose cameras carry lens distortion -> a new scene with pinhole cameras."""
+
+    scene: tyro.conf.Positional[Path]
+    """Scene folder in the Nerfies layout (dataset.json, camera/<id>.json, rgb/<k>x/). Its images are
+    undistorted by COLMAP's undistorter: the focal length is kept and the border cropped to valid pixels."""
+    out: Path
+    """New scene folder to create (must not exist, or be empty)."""
 
 
 MAX_SIZE = 4096
@@ -138,6 +154,7 @@ def _capture(args: CaptureArgs, source: Path, video: bool, fps: float | None = N
         holdout_every=args.holdout_every,
         mask_dir=args.mask_dynamic,
         solve=SolveOptions(matcher=args.matcher, threads=args.threads),
+        keep_distortion=args.keep_distortion,
     )
     summary = capture_scene(source, args.out, settings, lambda line: print(line, flush=True), video=video)
     width = summary.image_size[0]
@@ -163,20 +180,39 @@ def images(args: ImagesArgs) -> int:
     return _capture(args, args.images, False)
 
 
+def undistort(args: UndistortArgs) -> int:
+    from liquidgs.data.undistort import undistort_scene
+
+    import_pycolmap()  # fail before any work when it is missing
+    summary = undistort_scene(args.scene, args.out, lambda line: print(line, flush=True))
+    folders = " ".join(f"{factor}x" for factor in summary.folders)
+    width, height = summary.image_size
+    print(
+        f"done: {summary.frames} frames undistorted into pinhole cameras, {width}x{height} at 1x, "
+        f"rgb {folders}, {summary.seconds:.1f} s"
+    )
+    if summary.left_out:
+        left_out = ", ".join(summary.left_out)
+        print(f"not carried over (they describe the distorted images or are not the Nerfies layout): {left_out}")
+    print(f"scene: {args.out} (check it with: liquidgs data check {args.out})")
+    return 0
+
+
 SUBCOMMANDS = {
     "synth": (SynthArgs, synth),
     "check": (CheckArgs, check),
     "video": (VideoArgs, video),
     "images": (ImagesArgs, images),
+    "undistort": (UndistortArgs, undistort),
 }
 
 
 def main(argv: list[str]) -> int:
     if not argv or argv[0] not in SUBCOMMANDS:
-        usage = "usage: liquidgs data {synth,check,video,images} [--help]"
+        usage = "usage: liquidgs data {synth,check,video,images,undistort} [--help]"
         if argv and argv[0] in ("-h", "--help"):
             print(usage)
             return 0
-        raise ConfigError(f"choose a subcommand: synth, check, video or images ({usage})")
+        raise ConfigError(f"choose a subcommand: synth, check, video, images or undistort ({usage})")
     spec, run = SUBCOMMANDS[argv[0]]
     return run(parse_args(spec, argv[1:], prog=f"liquidgs data {argv[0]}", description=spec.__doc__))

@@ -1,24 +1,39 @@
 """Your own capture -> a scene in the Nerfies layout: frames, COLMAP cameras, splits, times, points.
 
+The registered frames are undistorted into a pinhole camera by COLMAP's own undistorter (the
+rasteriser is pinhole), cropped to valid pixels (see colmap.undistorters), unless
+keep_distortion asks for the frames as decoded and the lens's k1 in the camera files.
+
 Everything is built in a hidden temporary folder beside the output (.<name>.partial-*) and moved
-into place by one rename at the end, so a failure or an interrupt leaves no folder that looks
-like a scene.
+into place by one rename at the end (`build_atomically`, also used by `data undistort`), so a
+failure or an interrupt leaves no folder that looks like a scene.
 """
 
 from __future__ import annotations
 
+import copy
 import os
 import secrets
 import shutil
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import TypeVar
 
 import numpy as np
 from PIL import Image
 
 from liquidgs.atomic import write_json_atomic
-from liquidgs.data.colmap import Log, SolveOptions, check_model, solve_cameras
+from liquidgs.data.colmap import (
+    Log,
+    SolveOptions,
+    Undistorter,
+    check_model,
+    describe_camera,
+    solve_cameras,
+    undistorters,
+)
 from liquidgs.data.nerfies import (
     CAMERA_FOLDER,
     DATASET_FILE,
@@ -31,7 +46,13 @@ from liquidgs.data.nerfies import (
     rgb_folder,
 )
 from liquidgs.data.validate import open_image
-from liquidgs.data.video import ExtractedFrame, collect_image_frames, crop_to_multiple, extract_video_frames
+from liquidgs.data.video import (
+    SIDE_MULTIPLE,
+    ExtractedFrame,
+    collect_image_frames,
+    crop_to_multiple,
+    extract_video_frames,
+)
 from liquidgs.errors import ConfigError, DataError
 
 CAPTURE_FILE = "capture.json"  # how the scene was made: source, registered and dropped frames, errors
@@ -43,6 +64,8 @@ SCALES = (1, 2, 4)  # rgb/<k>x folders written
 # deformation and the means' learning rate are in absolute units).
 VIEWING_DISTANCE = 4.0
 
+Built = TypeVar("Built")
+
 
 @dataclass
 class CaptureSettings:
@@ -52,6 +75,8 @@ class CaptureSettings:
     holdout_every: int = 8
     mask_dir: Path | None = None
     solve: SolveOptions = field(default_factory=SolveOptions)
+    keep_distortion: bool = False
+    """Write the frames as decoded, with COLMAP's k1 in the camera files (trained as if pinhole)."""
 
 
 @dataclass
@@ -68,33 +93,53 @@ class CaptureSummary:
     mean_reprojection_error_px: float
     points: int
     image_size: tuple[int, int]
+    """(width, height) of rgb/1x."""
+    undistortion: dict | None
+    """The lens COLMAP fitted and the pinhole camera the frames were undistorted into; None
+    with keep_distortion."""
     matcher: str
     masked: bool
     seconds: dict[str, float]
 
 
-def capture_scene(source: Path, out: Path, settings: CaptureSettings, log: Log, *, video: bool) -> CaptureSummary:
-    """Build the scene of `source` (a video, or a folder of images when video is False) at `out`."""
+def refuse_taken(out: Path) -> None:
+    """An output folder must not exist, or be empty: a scene is never written over anything."""
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
         raise ConfigError(f"--out {out}: already exists and is not an empty folder; choose a new folder")
-    if settings.holdout_every < 2:
-        raise ConfigError(f"--holdout-every must be at least 2, got {settings.holdout_every}")
-    if settings.mask_dir is not None and not settings.mask_dir.is_dir():
-        raise DataError(settings.mask_dir, "--mask-dynamic: mask folder not found")
+
+
+def build_atomically(out: Path, build: Callable[[Path], Built]) -> Built:
+    """build(folder) in a hidden .<name>.partial-* folder beside `out`, renamed to `out` when it
+    returns; removed on any failure or interrupt. `out` must have passed refuse_taken."""
     out.parent.mkdir(parents=True, exist_ok=True)
     building = out.parent / f".{out.name}.partial-{secrets.token_hex(4)}"
     building.mkdir()  # not mkdtemp: its 0700 would stay on the scene folder
     try:
-        summary = _build(source, building, settings, log, video=video)
-        summary.out = str(out)
-        write_json_atomic(building / CAPTURE_FILE, asdict(summary))
+        result = build(building)
         if out.exists():
-            out.rmdir()  # empty, checked above; rename needs the name free
+            out.rmdir()  # empty, checked by refuse_taken; rename needs the name free
         os.rename(building, out)
     except BaseException:
         shutil.rmtree(building, ignore_errors=True)
         raise
-    return summary
+    return result
+
+
+def capture_scene(source: Path, out: Path, settings: CaptureSettings, log: Log, *, video: bool) -> CaptureSummary:
+    """Build the scene of `source` (a video, or a folder of images when video is False) at `out`."""
+    refuse_taken(out)
+    if settings.holdout_every < 2:
+        raise ConfigError(f"--holdout-every must be at least 2, got {settings.holdout_every}")
+    if settings.mask_dir is not None and not settings.mask_dir.is_dir():
+        raise DataError(settings.mask_dir, "--mask-dynamic: mask folder not found")
+
+    def build(building: Path) -> CaptureSummary:
+        summary = _build(source, building, settings, log, video=video)
+        summary.out = str(out)
+        write_json_atomic(building / CAPTURE_FILE, asdict(summary))
+        return summary
+
+    return build_atomically(out, build)
 
 
 def _build(source: Path, scene: Path, settings: CaptureSettings, log: Log, *, video: bool) -> CaptureSummary:
@@ -180,32 +225,37 @@ def _write_scene(
         shown = ", ".join(item["source"] for item in dropped[:20]) + (" ..." if len(dropped) > 20 else "")
         log(f"writing: {len(dropped)} frame(s) COLMAP could not register are dropped: {shown}")
 
+    error = float(model.compute_mean_reprojection_error())  # of COLMAP's own solution, before any undistortion
+    # Copies: model.cameras hands out references, and the model's cameras become pinhole below.
+    used = {by_name[f"{frame.id}.png"].camera_id for frame in registered}
+    lens = {camera_id: copy.copy(model.cameras[camera_id]) for camera_id in sorted(used)}
+    undistort: dict[int, Undistorter] = {}
+    if not settings.keep_distortion:
+        undistort = dict(zip(lens, undistorters(list(lens.values()), SIDE_MULTIPLE)))
+        for camera_id, undistorter in undistort.items():
+            before, after = describe_camera(lens[camera_id]), describe_camera(undistorter.pinhole)
+            log(f"undistortion: {before} -> {after}, cropped to valid pixels")
+
     for factor in SCALES:
         rgb_folder(scene, factor).mkdir(parents=True)
     (scene / CAMERA_FOLDER).mkdir()
     for frame in registered:
         image = by_name[f"{frame.id}.png"]
-        camera = model.cameras[image.camera_id]
-        focal, cx, cy, k1 = (float(v) for v in camera.params)  # SIMPLE_RADIAL: f, cx, cy, k
+        undistorter = undistort.get(image.camera_id)
+        camera = undistorter.pinhole if undistorter else lens[image.camera_id]
         pose = image.cam_from_world()
         rotation = np.asarray(pose.rotation.matrix(), dtype=np.float64)
         position = -rotation.T @ np.asarray(pose.translation, dtype=np.float64)
-        nerfies_camera = NerfiesCamera(
-            rotation=rotation,
-            position=position,
-            focal_length=focal,
-            pixel_aspect_ratio=1.0,
-            principal_point=np.array([cx, cy]),  # COLMAP's pixel centres are at +0.5, as ours
-            skew=0.0,
-            image_size=(camera.width, camera.height),
-            distortion=np.array([k1, 0.0, 0.0, 0.0, 0.0]),
-        )
-        write_json_atomic(camera_path(scene, frame.id), camera_json(nerfies_camera))
+        write_json_atomic(camera_path(scene, frame.id), camera_json(_nerfies_camera(camera, rotation, position)))
         source = frames_dir / f"{frame.id}.png"
-        with Image.open(source) as full:
+        with Image.open(source) as decoded:
+            full = Image.fromarray(undistorter.image(np.asarray(decoded.convert("RGB")))) if undistorter else decoded
             for factor in SCALES[1:]:
                 full.reduce(factor).save(rgb_folder(scene, factor) / source.name, format="PNG")
-        os.replace(source, rgb_folder(scene, 1) / source.name)
+            if undistorter:
+                full.save(rgb_folder(scene, 1) / source.name, format="PNG")
+        if not undistorter:
+            os.replace(source, rgb_folder(scene, 1) / source.name)
 
     ids = [frame.id for frame in registered]
     held_out = settings.holdout_every // 2
@@ -235,11 +285,12 @@ def _write_scene(
     scale = VIEWING_DISTANCE / max(_median_depth(model), 1e-9)
     write_json_atomic(scene / SCENE_FILE, {"center": center.tolist(), "scale": scale})
     np.save(scene / POINTS_FILE, np.concatenate([xyz, colors / 255.0], axis=1).astype(np.float32))
+    for camera_id, undistorter in undistort.items():
+        _undistort_model(model, camera_id, undistorter)
     (scene / SPARSE_FOLDER).mkdir(parents=True)
     model.write(scene / SPARSE_FOLDER)
 
     first = model.cameras[by_name[f"{registered[0].id}.png"].camera_id]
-    error = float(model.compute_mean_reprojection_error())
     log(
         f"writing: {len(ids)} frames ({len(train_ids)} train, {len(test_ids)} test: every "
         f"{settings.holdout_every}th from the {held_out + 1}th), rgb/1x 2x 4x, {len(xyz)} points"
@@ -256,7 +307,58 @@ def _write_scene(
         mean_reprojection_error_px=round(error, 4),
         points=len(xyz),
         image_size=(first.width, first.height),
+        undistortion=_undistortion_record(lens, undistort),
         matcher=settings.solve.matcher,
         masked=settings.mask_dir is not None,
         seconds={},
     )
+
+
+def _nerfies_camera(camera, rotation: np.ndarray, position: np.ndarray) -> NerfiesCamera:
+    """A COLMAP SIMPLE_RADIAL (f, cx, cy, k) or PINHOLE (fx, fy, cx, cy) camera at this pose."""
+    if camera.model_name == "SIMPLE_RADIAL":
+        fx, cx, cy, k1 = (float(v) for v in camera.params)
+        fy = fx
+    elif camera.model_name == "PINHOLE":
+        fx, fy, cx, cy = (float(v) for v in camera.params)
+        k1 = 0.0
+    else:  # the pipeline asks COLMAP for SIMPLE_RADIAL and undistorts into PINHOLE
+        raise ValueError(f"unexpected COLMAP camera model {camera.model_name}")
+    return NerfiesCamera(
+        rotation=rotation,
+        position=position,
+        focal_length=fx,
+        pixel_aspect_ratio=fy / fx,
+        principal_point=np.array([cx, cy]),  # COLMAP's pixel centres are at +0.5, as ours
+        skew=0.0,
+        image_size=(camera.width, camera.height),
+        distortion=np.array([k1, 0.0, 0.0, 0.0, 0.0]),
+    )
+
+
+def _undistort_model(model, camera_id: int, undistorter: Undistorter) -> None:
+    """COLMAP's model as seen by the undistorted frames: the pinhole camera, every keypoint moved
+    with its pixel (as COLMAP's own undistorter writes its sparse model). Poses and points stay."""
+    for image in model.images.values():
+        if image.camera_id == camera_id and image.num_points2D():
+            points = image.points2D
+            moved = undistorter.points(np.array([point.xy for point in points]))
+            for point, xy in zip(points, moved):
+                point.xy = xy
+    model.cameras[camera_id] = undistorter.pinhole
+
+
+def _camera_record(camera) -> dict:
+    return {"model": camera.model_name, "params": camera.params.tolist(), "size": [camera.width, camera.height]}
+
+
+def _undistortion_record(lens: dict, undistort: dict[int, Undistorter]) -> dict | None:
+    """capture.json's record of the undistortion (the pipeline solves one shared camera)."""
+    if not undistort:
+        return None
+    camera_id, undistorter = next(iter(undistort.items()))
+    return {
+        "from": _camera_record(lens[camera_id]),
+        "to": _camera_record(undistorter.pinhole),
+        "border": f"cropped to valid pixels (COLMAP's blank_pixels 0), then to sides divisible by {SIDE_MULTIPLE}",
+    }

@@ -1,17 +1,27 @@
-"""Camera poses for a folder of frames with COLMAP (the pycolmap wheels: no COLMAP build, CPU).
+"""Camera poses for a folder of frames with COLMAP (the pycolmap wheels: no COLMAP build, CPU),
+and COLMAP's own undistortion of images into a pinhole camera.
 
 One shared SIMPLE_RADIAL camera (a video has one lens and one zoom), SIFT features, sequential
 or exhaustive matching, incremental mapping; the largest model is kept.
+
+Undistortion (`undistorters`): pycolmap.undistort_camera / undistort_image with COLMAP's default
+options. blank_pixels = 0 means the border is cropped: the pinhole image keeps the focal length
+and spans only pixels the lens saw, so no pixel is blank (a barrel lens, k1 < 0, gives a
+slightly larger image, a pincushion lens a smaller one). The result is then centre-cropped to
+sides divisible by a given multiple (the coarsest rgb/<k>x folder).
 """
 
 from __future__ import annotations
 
+import copy
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Literal
+
+import numpy as np
 
 from liquidgs.errors import LiquidGSError
 
@@ -192,3 +202,88 @@ def check_model(model: pycolmap.Reconstruction, total: int) -> None:
             f"COLMAP's model did not converge: mean reprojection error {error:.2f} px (at most "
             f"{MAX_MEAN_REPROJECTION_ERROR} px expected); try --matcher exhaustive or --mask-dynamic"
         )
+
+
+@dataclass(frozen=True)
+class Undistorter:
+    """Images of one distorted camera -> images of a pinhole camera (COLMAP's warp, then a crop)."""
+
+    distorted: pycolmap.Camera
+    """The lens, at the resolution of the images it is given."""
+    pinhole: pycolmap.Camera
+    """PINHOLE: fx, fy, cx, cy of the undistorted, cropped images (pixel centres at +0.5)."""
+    offset: tuple[int, int]
+    """Columns and rows cropped at the left and top of COLMAP's undistorted image."""
+
+    def image(self, pixels: np.ndarray) -> np.ndarray:
+        """uint8 [H, W, 3] (or [H, W, 4], straight alpha) seen by `distorted` -> the pinhole image."""
+        pycolmap = import_pycolmap()
+        if pixels.shape[:2] != (self.distorted.height, self.distorted.width):
+            raise LiquidGSError(
+                f"an image of {pixels.shape[1]}x{pixels.shape[0]} given to the undistortion of a "
+                f"{self.distorted.width}x{self.distorted.height} camera"
+            )
+        if pixels.ndim == 3 and pixels.shape[2] == 4 and (pixels[..., 3] < 255).any():
+            # Interpolate premultiplied colour and alpha (COLMAP's bitmaps hold 1 or 3 channels),
+            # so that edges do not pick up the colour of transparent pixels.
+            alpha = pixels[..., 3:].astype(np.float64)
+            premultiplied = np.rint(pixels[..., :3] * alpha / 255.0).astype(np.uint8)
+            color = self._warp(pycolmap, premultiplied).astype(np.float64)
+            alpha = self._warp(pycolmap, pixels[..., 3])[..., None].astype(np.float64)
+            rgb = np.divide(color * 255.0, alpha, out=np.zeros_like(color), where=alpha > 0)
+            return np.concatenate([np.rint(rgb).clip(0, 255), alpha], axis=-1).astype(np.uint8)
+        if pixels.ndim == 3 and pixels.shape[2] == 4:  # opaque: the colour alone
+            opaque = np.full((self.pinhole.height, self.pinhole.width, 1), 255, np.uint8)
+            return np.concatenate([self._warp(pycolmap, pixels[..., :3]), opaque], axis=-1)
+        return self._warp(pycolmap, pixels)
+
+    def _warp(self, pycolmap, pixels: np.ndarray) -> np.ndarray:
+        bitmap = pycolmap.Bitmap.from_array(np.ascontiguousarray(pixels))
+        warped, _ = pycolmap.undistort_image(pycolmap.UndistortCameraOptions(), bitmap, self.distorted)
+        x, y = self.offset
+        array = warped.to_array()[y : y + self.pinhole.height, x : x + self.pinhole.width]
+        return array.reshape(*array.shape[:2], *pixels.shape[2:])
+
+    def points(self, xy: np.ndarray) -> np.ndarray:
+        """[N, 2] pixel positions in the distorted images -> the same points in the pinhole images."""
+        rays = self.distorted.cam_from_img(np.asarray(xy, dtype=np.float64).reshape(-1, 2))
+        return self.pinhole.img_from_cam(np.concatenate([rays, np.ones((len(rays), 1))], axis=1))
+
+
+def undistorters(cameras: Sequence[pycolmap.Camera], multiple: int) -> list[Undistorter]:
+    """One Undistorter per camera, each cropped to sides divisible by `multiple`.
+
+    Cameras of one image size get one output size (the smallest of COLMAP's, each cropped about
+    its centre), so that a scene whose images had one size keeps one size.
+    """
+    pycolmap = import_pycolmap()
+    options = pycolmap.UndistortCameraOptions()  # blank_pixels = 0: crop to valid pixels
+    full = [pycolmap.undistort_camera(options, camera) for camera in cameras]
+    sizes: dict[tuple[int, int], tuple[int, int]] = {}
+    for camera, pinhole in zip(cameras, full):
+        width, height = sizes.get((camera.width, camera.height), (pinhole.width, pinhole.height))
+        sizes[(camera.width, camera.height)] = (min(width, pinhole.width), min(height, pinhole.height))
+    result = []
+    for camera, pinhole in zip(cameras, full):
+        width, height = sizes[(camera.width, camera.height)]
+        width, height = width - width % multiple, height - height % multiple
+        if width < multiple or height < multiple:
+            raise LiquidGSError(
+                f"undistorting the {camera.width}x{camera.height} {camera.model_name} camera "
+                f"({camera.params_to_string()}) leaves {pinhole.width}x{pinhole.height} valid pixels, "
+                f"too few for sides divisible by {multiple}; are the distortion coefficients right?"
+            )
+        left, top = (pinhole.width - width) // 2, (pinhole.height - height) // 2
+        fx, fy, cx, cy = (float(value) for value in pinhole.params)
+        cropped = pycolmap.Camera(
+            model="PINHOLE", width=width, height=height, params=[fx, fy, cx - left, cy - top],
+            camera_id=camera.camera_id,
+        )  # fmt: skip
+        result.append(Undistorter(copy.copy(camera), cropped, (left, top)))  # not a reference into a model
+    return result
+
+
+def describe_camera(camera: pycolmap.Camera) -> str:
+    """'SIMPLE_RADIAL 200x152 (f, cx, cy, k: 190.2, 100, 76, -0.1498)', for the log."""
+    values = ", ".join(f"{float(value):.4g}" for value in camera.params)
+    return f"{camera.model_name} {camera.width}x{camera.height} ({camera.params_info}: {values})"

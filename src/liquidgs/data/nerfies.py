@@ -47,7 +47,7 @@ class NerfiesCamera:
     principal_point: np.ndarray
     skew: float
     image_size: tuple[int, int]  # (width, height)
-    distortion: np.ndarray  # radial then tangential coefficients
+    distortion: np.ndarray  # k1, k2, k3, p1, p2 (OpenCV's order: radial, then tangential)
 
 
 def camera_json(camera: NerfiesCamera) -> dict:
@@ -79,13 +79,16 @@ def read_camera(path: Path) -> NerfiesCamera:
         raise DataError(path, f"expected two positive integers, got {size.tolist()}", field="image_size")
     # Legacy Nerfies captures name the tangential coefficients `tangential`.
     tangential_key = "tangential_distortion" if "tangential_distortion" in data else "tangential"
-    distortion = [np.zeros(0)]
-    for key in ("radial_distortion", tangential_key):
-        if key in data:
-            values = data[key]
-            if not isinstance(values, list):
-                raise DataError(path, "expected a list of coefficients", field=key)
-            distortion.append(as_array(values, (len(values),), path, key))
+    # Nerfies' lens is OpenCV's k1, k2, k3 (radial) and p1, p2 (tangential); shorter lists mean
+    # zeros after them, so the coefficients always sit at the same place in `distortion`.
+    distortion = []
+    for key, count in (("radial_distortion", 3), (tangential_key, 2)):
+        values = data.get(key, [])
+        if not isinstance(values, list):
+            raise DataError(path, "expected a list of coefficients", field=key)
+        if len(values) > count:
+            raise DataError(path, f"expected at most {count} coefficients, got {len(values)}", field=key)
+        distortion.append(np.pad(as_array(values, (len(values),), path, key), (0, count - len(values))))
     return NerfiesCamera(
         rotation=rotation,
         position=as_array(require(data, "position", path, "position"), (3,), path, "position"),
