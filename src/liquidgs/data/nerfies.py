@@ -103,6 +103,17 @@ def read_camera(path: Path) -> NerfiesCamera:
     )
 
 
+def check_image_size(camera_file: Path, camera: NerfiesCamera, image: Path, size: tuple[int, int], factor: int) -> None:
+    """An image at 1/factor must be the camera's image_size / factor (to the pixel)."""
+    expected = (camera.image_size[0] / factor, camera.image_size[1] / factor)
+    if abs(size[0] - expected[0]) >= 1 or abs(size[1] - expected[1]) >= 1:
+        raise DataError(
+            camera_file,
+            f"image {image} gives {size[0]}x{size[1]} at 1/{factor}, expected {expected[0]:g}x{expected[1]:g}",
+            field="image_size",
+        )
+
+
 def read_nerfies(cfg: DataConfig) -> SceneDataset:
     root = cfg.path
     if cfg.val_as_test:
@@ -163,13 +174,7 @@ def read_nerfies(cfg: DataConfig) -> SceneDataset:
             image = folder / f"{image_id}.png"
             width, height = probe_image(image, dataset_path, field)
             width, height = width // extra_factor, height // extra_factor
-            expected = (camera.image_size[0] / factor, camera.image_size[1] / factor)
-            if abs(width - expected[0]) >= 1 or abs(height - expected[1]) >= 1:
-                raise DataError(
-                    camera_file,
-                    f"image {image} gives {width}x{height} at 1/{factor}, expected {expected[0]:g}x{expected[1]:g}",
-                    field="image_size",
-                )
+            check_image_size(camera_file, camera, image, (width, height), factor)
             if frames and (width, height) != (frames[0].width, frames[0].height):
                 raise DataError(
                     dataset_path,

@@ -38,6 +38,7 @@ from liquidgs.data.nerfies import (
     _id_list,
     camera_json,
     camera_path,
+    check_image_size,
     read_camera,
     rgb_folder,
 )
@@ -178,13 +179,7 @@ def _read_scene(scene: Path) -> tuple[list[str], dict[str, NerfiesCamera], list[
         for factor in reversed(folders):  # ends with the finest
             image = rgb_folder(scene, factor) / f"{image_id}.png"
             width, height = probe_image(image, dataset_path, "ids")
-            expected = (camera.image_size[0] / factor, camera.image_size[1] / factor)
-            if abs(width - expected[0]) >= 1 or abs(height - expected[1]) >= 1:
-                raise DataError(
-                    path,
-                    f"image {image} is {width}x{height}, expected {expected[0]:g}x{expected[1]:g} at 1/{factor}",
-                    field="image_size",
-                )
+            check_image_size(path, camera, image, (width, height), factor)
         sizes[image_id] = (width, height)
     if not any(np.any(camera.distortion != 0) for camera in cameras.values()):
         raise DataError(
