@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import math
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -27,9 +26,10 @@ from liquidgs.args import parse_args
 from liquidgs.atomic import write_text_atomic
 from liquidgs.commands.train import resolve_config
 from liquidgs.data import DEFAULT_SYNTHETIC_SCENE, SYNTHETIC_SCENES, generate_synthetic
-from liquidgs.data.synthetic import moving_mask
+from liquidgs.data.regions import moving_region
 from liquidgs.errors import ConfigError, LiquidGSError
 from liquidgs.eval.lpips import metric_name
+from liquidgs.eval.regions import region_psnr, region_share
 from liquidgs.experiments.plan import RunEntry
 from liquidgs.experiments.runner import RunOutcome, default_parallel, run_local
 from liquidgs.fields.config import DEFAULT_SDE_LAMBDA
@@ -121,21 +121,16 @@ def fastest_moving_frame(run: TrainedRun, frames) -> int:
 
 
 def moving_region_psnr(args: DemoArgs, loaded: dict[str, TrainedRun], frames, background) -> tuple[dict, float]:
-    """PSNR of each run over the test pixels whose ground truth moves (see synthetic.moving_mask),
+    """PSNR of each run over the test pixels whose ground truth moves (see data.regions.moving_region),
     from 8-bit renders as the evaluation scores them, and the share of test pixels that move."""
-    step = 1.0 / (FRAMES - 1)
-    errors = {name: 0.0 for name in loaded}
-    count = 0
-    for frame in frames:
-        mask = moving_mask(args.scene, frame.K.double().numpy(), np.linalg.inv(frame.viewmat.double().numpy()),
-                           frame.width, frame.height, frame.time, step)  # fmt: skip
-        count += int(mask.sum()) * 3
-        truth = frame.image_uint8().astype(np.float64) / 255.0
-        for name, run in loaded.items():
-            rgb = to_uint8(run.render(frame.viewmat, frame.K, frame.width, frame.height, frame.time, background).rgb)
-            errors[name] += float(((rgb.astype(np.float64) / 255.0 - truth)[mask] ** 2).sum())
-    share = count / (3 * sum(f.width * f.height for f in frames))
-    return {name: -10.0 * math.log10(max(error / max(count, 1), 1e-12)) for name, error in errors.items()}, share
+    masks = [moving_region(args.scene, frame, 1.0 / (FRAMES - 1)) for frame in frames]
+    truths = [frame.image_uint8() for frame in frames]
+
+    def renders(run: TrainedRun):
+        for frame in frames:
+            yield to_uint8(run.render(frame.viewmat, frame.K, frame.width, frame.height, frame.time, background).rgb)
+
+    return {name: region_psnr(renders(run), truths, masks) for name, run in loaded.items()}, region_share(masks)
 
 
 def write_report(args: DemoArgs, runs: dict[str, Path], data_path: Path) -> Path:
@@ -196,7 +191,7 @@ def write_report(args: DemoArgs, runs: dict[str, Path], data_path: Path) -> Path
     ]
     for name, res in results.items():
         final = res["final"]
-        scores = (f"{fmt(final['psnr'], 2)} | {moving[name]:.2f} | {fmt(final['ssim'], 4)} | "
+        scores = (f"{fmt(final['psnr'], 2)} | {fmt(moving[name], 2)} | {fmt(final['ssim'], 4)} | "
                   f"{fmt(final.get('lpips'), 4)}")  # fmt: skip
         cost = f"{res['field_parameters']:,} | {res['fps']:.1f} | {res['train_seconds']:.0f} | {res['num_gaussians']:,}"
         lines.append(f"| {FIELDS[name]} | {scores} | {cost} |")

@@ -22,6 +22,7 @@ from liquidgs.experiments.report.aggregate import (
 )
 from liquidgs.experiments.report.collect import EVALUATIONS, Collection, Method, collect
 from liquidgs.experiments.report.figures import mean_psnr_curve, noise_plot, qualitative_figure
+from liquidgs.experiments.report.margins import margin_section
 from liquidgs.experiments.report.references import (
     MEAN,
     noise_study_means,
@@ -309,6 +310,7 @@ def write_report(
     md += ["## Per-scene results", ""]
     for scores in per_dataset:
         _score_section(scores, evaluation, references, md, tex)
+    margin_section(collection, md, tex)
     md += ["## Seed spread and ties", ""]
     for scores in per_dataset:
         _spread_section(scores, md)
