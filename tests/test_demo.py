@@ -21,7 +21,7 @@ def test_demo_writes_the_report(tmp_path, monkeypatch, capsys):
     assert "| field | PSNR | moving-region PSNR |" in report and "of the test pixels" in report
     assert "**final**" in report and "Fastest-moving test frame" in report
     if LPIPS_DIR:
-        assert "LPIPS: LPIPS-Alex, v0.1, inputs scaled to [-1,1] (the paper reports LPIPS-VGG" in report
+        assert "LPIPS: LPIPS-Alex, v0.1, inputs scaled to [-1,1] (the paper names no backbone; the D-3DGS" in report
     else:
         assert "LPIPS-Alex unavailable: backbone weights not found" in report
     side_by_side = np.asarray(Image.open(out / "side_by_side.png"))

@@ -174,7 +174,10 @@ def write_report(args: DemoArgs, runs: dict[str, Path], data_path: Path) -> Path
         scaling = "inputs scaled to [-1,1]" if final_mlp.get("lpips_normalize") else "unnormalised inputs"
         lpips_desc = f"LPIPS: {metric_name(final_mlp['lpips_backbone'])}, v0.1, {scaling}"
         if final_mlp["lpips_backbone"] != "vgg":
-            lpips_desc += " (the paper reports LPIPS-VGG: these LPIPS values are not comparable with its tables)"
+            lpips_desc += (
+                " (the paper names no backbone; the D-3DGS metrics code it inherits uses LPIPS-VGG on [0,1] "
+                "inputs: these LPIPS values are not comparable with its tables)"
+            )
     lines = [
         f"# liquidgs demo: {args.scene}",
         "",
