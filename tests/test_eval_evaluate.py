@@ -149,3 +149,13 @@ def test_describe_lpips_names_the_metric_or_the_reason():
     assert describe_lpips({"lpips": 0.123456, "lpips_metric": "LPIPS-Alex"}) == "LPIPS-Alex 0.1235"
     missing = {"lpips": None, "lpips_unavailable": "LPIPS-VGG unavailable: no vgg16 weights"}
     assert describe_lpips(missing) == "(LPIPS-VGG unavailable: no vgg16 weights)"
+
+
+def test_images_too_small_for_the_lpips_network_are_reported_not_a_crash(lpips_weights):
+    """AlexNet needs 31 px: at 16 px LPIPS is unavailable with the reason, PSNR and SSIM still come."""
+    lpips = LPIPS("alex", weights=lpips_weights)
+    summary, per_view = evaluate_views(noisy_render(0.05), make_frames(count=2, size=16), lpips=lpips)
+    assert summary["lpips"] is None and all(view["lpips"] is None for view in per_view)
+    assert summary["lpips_unavailable"].startswith("LPIPS-Alex unavailable: images of 16x16 are smaller than the 31 px")
+    assert summary["psnr"] > 0 and len(per_view) == 2
+    assert evaluate_views(noisy_render(0.05), make_frames(count=1, size=31), lpips=lpips)[0]["lpips"] is not None

@@ -76,10 +76,9 @@ def run(args: RunArgs, console: Console) -> int:
             shared += donor is not None
             state = "done" if entry in done else "shared" if donor is not None else "to run"
             print(f"{entry.name:<44} {state:<7} {donor or entry.folder(experiment.directory)}")
-        print(
-            f"{len(experiment.runs)} runs ({len(done)} done, {shared} finished in another experiment, to be shared) "
-            f"in {experiment.directory}; nothing was run (--dry-run)"
-        )
+        also = f", {shared} finished in another experiment, to be shared" if shared else ""
+        where = f"in {experiment.directory}; nothing was run (--dry-run)"
+        print(f"{len(experiment.runs)} runs ({len(done)} done{also}) {where}")
         return 0
     write_manifest(experiment)
     for folder in generate_scenes(experiment):

@@ -9,7 +9,7 @@ from typing import Protocol
 import torch
 
 from liquidgs.errors import ConfigError
-from liquidgs.eval.lpips import LPIPS
+from liquidgs.eval.lpips import LPIPS, LPIPSUnavailable
 from liquidgs.eval.metrics import psnr, quantize_8bit, ssim
 
 
@@ -65,15 +65,24 @@ def evaluate_views(
             truth = frame.image().to(render.device, render.dtype).clamp(0, 1)
             if quantize:
                 render, truth = quantize_8bit(render), quantize_8bit(truth)
+            score = None
+            if lpips is not None:
+                try:
+                    score = lpips(render, truth).item()
+                except LPIPSUnavailable as err:  # images too small for its network: reported, not a crash
+                    lpips, lpips_error = None, str(err)
             per_view.append(
                 {
                     "name": frame.name,
                     "time": float(frame.time),
                     "psnr": psnr(render, truth).item(),
                     "ssim": ssim(render, truth).item(),
-                    "lpips": lpips(render, truth).item() if lpips is not None else None,
+                    "lpips": score,
                 }
             )
+    if lpips is None:
+        for view in per_view:
+            view["lpips"] = None
 
     summary: dict[str, object] = {}
     for metric in ("psnr", "ssim"):

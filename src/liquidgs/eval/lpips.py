@@ -58,18 +58,22 @@ class _Backbone:
     hub_file: str  # torchvision's checkpoint file name in the torch hub cache
     taps: tuple[int, ...]  # indices in ``features`` whose outputs LPIPS compares
     channels: tuple[int, ...]  # channels of those outputs, one lin layer each
+    min_side: int  # smallest image side whose last tap still has a pixel (measured on the layouts)
 
 
 BACKBONES = {
-    "alex": _Backbone("LPIPS-Alex", "alexnet", "alexnet-owt-7be5be79.pth", (1, 4, 7, 9, 11), (64, 192, 384, 256, 256)),
+    "alex": _Backbone(
+        "LPIPS-Alex", "alexnet", "alexnet-owt-7be5be79.pth", (1, 4, 7, 9, 11), (64, 192, 384, 256, 256), 31
+    ),
     "squeeze": _Backbone(
         "LPIPS-Squeeze",
         "squeezenet1_1",
         "squeezenet1_1-b8a52dc0.pth",
         (1, 4, 7, 9, 10, 11, 12),
         (64, 128, 256, 384, 384, 512, 512),
+        17,
     ),
-    "vgg": _Backbone("LPIPS-VGG", "vgg16", "vgg16-397923af.pth", (3, 8, 15, 22, 29), (64, 128, 256, 512, 512)),
+    "vgg": _Backbone("LPIPS-VGG", "vgg16", "vgg16-397923af.pth", (3, 8, 15, 22, 29), (64, 128, 256, 512, 512), 16),
 }
 
 
@@ -237,6 +241,7 @@ class LPIPS(nn.Module):
         self.backbone = backbone
         self.normalize = normalize
         self.taps = spec.taps
+        self.min_side = spec.min_side
         self.weights_path, self.weights_source = resolve_backbone_weights(backbone, weights)
         self.lin_path = lin_weights_path(backbone)
 
@@ -290,6 +295,11 @@ class LPIPS(nn.Module):
 
     def forward(self, img: torch.Tensor, ref: torch.Tensor) -> torch.Tensor:
         img_b, ref_b, single = image_pair(img, ref)
+        height, width = img_b.shape[1:3]
+        if min(height, width) < self.min_side:
+            raise LPIPSUnavailable(
+                self.backbone, f"images of {width}x{height} are smaller than the {self.min_side} px its network needs"
+            )
         batch = img_b.shape[0]
         # Both images go through the backbone as one batch, channel-first.
         x = torch.cat([img_b, ref_b]).permute(0, 3, 1, 2).to(self.shift.device, self.shift.dtype)
