@@ -139,6 +139,41 @@ def check(args: CheckArgs) -> int:
     return 0
 
 
+QUICK_LOOK_GRAD_THRESHOLD = 0.0028
+"""Densification threshold of the quick look: 4 x the reference's 0.0007, which is for 800 px
+images; the quick look trains at 128-255 px along the longer side (see quick_look_commands)."""
+QUICK_LOOK_GAUSSIANS = 10_000
+"""Gaussians the quick look may grow to: at most 1 per pixel, and at most this many in all."""
+QUICK_LOOK_OPACITY_RESET = 3000
+"""The reference's opacity-reset interval rather than the tiny preset's 600: past the quick look's
+1,500 iterations, so it never resets. On real clips the fields (tiny's learning rate 5e-3) blew the
+Gaussians up after a reset at 600, and the size prune that follows it removed most of them."""
+
+
+def quick_look_commands(out: Path, size: tuple[int, int]) -> list[str]:
+    """What `data video` / `data images` print as the CPU quick look for the scene at `out` whose
+    frames are `size` (width, height): the tiny preset at the largest downscale that keeps the longer
+    side at least 128 pixels, a densification threshold for that size, a cap on Gaussians per pixel
+    (DensifyConfig.max_per_pixel) of 1, or less where 1 would allow more than QUICK_LOOK_GAUSSIANS,
+    and no opacity reset; then a render of the run."""
+    width, height = size
+    downscale = next(k for k in (4, 2, 1) if max(width, height) / k >= 128 or k == 1)
+    pixels = (width // downscale) * (height // downscale)
+    per_pixel = min(1.0, int(100 * QUICK_LOOK_GAUSSIANS / pixels) / 100)
+    runs = Path("outputs") / out.name / "quick"
+    train = (
+        f"liquidgs train --data {out} --preset tiny --downscale {downscale} "
+        f"--densify.grad-threshold {QUICK_LOOK_GRAD_THRESHOLD:g} --densify.max-per-pixel {per_pixel:g} "
+        f"--densify.opacity-reset-interval {QUICK_LOOK_OPACITY_RESET}"
+    )
+    return [
+        "quick look on a CPU (train + render, under 5 minutes per field on 2 cores):",
+        f"  {train} --field mlp --out {runs / 'mlp'}",
+        f"  liquidgs render --run {runs / 'mlp'}",
+        "  (the same with --field static, the floor a field must beat, and --field cfc, the liquid field)",
+    ]
+
+
 def _capture(args: CaptureArgs, source: Path, video: bool, fps: float | None = None, frames: int | None = None) -> int:
     from liquidgs.data.capture import CaptureSettings, capture_scene
     from liquidgs.data.video import check_sampling
@@ -157,8 +192,6 @@ def _capture(args: CaptureArgs, source: Path, video: bool, fps: float | None = N
         keep_distortion=args.keep_distortion,
     )
     summary = capture_scene(source, args.out, settings, lambda line: print(line, flush=True), video=video)
-    width = summary.image_size[0]
-    quick = next(k for k in (4, 2, 1) if width / k >= 128 or k == 1)
     print(
         f"done: {summary.frames_registered}/{summary.frames_total} frames registered"
         + (f" ({len(summary.dropped)} dropped, listed in capture.json)" if summary.dropped else "")
@@ -167,7 +200,7 @@ def _capture(args: CaptureArgs, source: Path, video: bool, fps: float | None = N
     print("time: " + ", ".join(f"{stage} {value:.1f} s" for stage, value in summary.seconds.items()))
     print(f"scene: {args.out} (check it with: liquidgs data check {args.out})")
     print(f"train: liquidgs train --data {args.out} --field mlp --preset nerfds")
-    print(f"quick look on a CPU: liquidgs train --data {args.out} --field mlp --preset tiny --downscale {quick}")
+    print("\n".join(quick_look_commands(args.out, summary.image_size)))
     return 0
 
 

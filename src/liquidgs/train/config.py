@@ -228,6 +228,7 @@ _FLOAT_RULES = {
     "densify.max_world_size": _positive,
     "densify.split_scale_divisor": _positive,
     "densify.reset_opacity_to": _open_unit,
+    "densify.max_per_pixel": _non_negative,
 }
 
 
@@ -298,6 +299,8 @@ def identity(cfg: TrainConfig) -> dict:
         del d["perturb"]
     if not cfg.eval.also:  # runs without extra evaluations hash as they did before the setting existed
         del d["eval"]["also"]
+    if not cfg.densify.max_per_pixel:  # uncapped runs hash as they did before the cap existed
+        del d["densify"]["max_per_pixel"]
     return d
 
 

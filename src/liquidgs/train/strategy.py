@@ -39,6 +39,12 @@ class DensifyConfig:
     split_count: int = 2
     split_scale_divisor: float = 1.6
     reset_opacity_to: float = 0.01
+    max_per_pixel: float = 0.0
+    """Cap on the Gaussians densification may grow to, per pixel of a training image (0: no cap,
+    as the reference). The thresholds above are the reference's for 800x800 images; at 162x90
+    they grew a real clip to 5.6 Gaussians per pixel in 1,500 iterations. When a step's clones
+    and splits would pass the cap, those with the largest gradients go first (a split counts as
+    its split_count - 1 extra Gaussians); pruning is not capped."""
 
 
 class D3DGSStrategy:
@@ -71,7 +77,8 @@ class D3DGSStrategy:
             return report
         self._accumulate(state, info)
         if step > cfg.start and step % cfg.interval == 0:
-            report.update(self._densify_and_prune(params, optimizers, state, step, generator))
+            pixels = int(info["width"]) * int(info["height"])
+            report.update(self._densify_and_prune(params, optimizers, state, step, generator, pixels))
         if step % cfg.opacity_reset_interval == 0:
             self._reset_opacity(params, optimizers)
             report["reset"] = 1
@@ -95,13 +102,15 @@ class D3DGSStrategy:
         )
 
     @torch.no_grad()
-    def _densify_and_prune(self, params, optimizers, state, step, generator) -> dict[str, int]:
+    def _densify_and_prune(self, params, optimizers, state, step, generator, pixels: int) -> dict[str, int]:
         cfg = self.config
         grads = state["grad_accum"] / state["count"]
         grads[~torch.isfinite(grads)] = 0.0
         high_grad = grads >= cfg.grad_threshold
         max_scale = torch.exp(params["scales"]).max(dim=-1).values
         small = max_scale <= cfg.percent_dense * self.scene_extent
+        if cfg.max_per_pixel > 0:
+            high_grad = self._within_cap(high_grad, small, grads, pixels)
 
         clone_mask = high_grad & small
         n_clone = int(clone_mask.sum())
@@ -147,6 +156,24 @@ class D3DGSStrategy:
         for key in ("grad_accum", "count", "max_radii"):
             state[key].zero_()
         return {"cloned": n_clone, "split": n_split, "pruned": n_pruned, "pruned_all": int(pruned_all)}
+
+    def cap(self, pixels: int) -> int:
+        """The most Gaussians densification grows to on images of `pixels` pixels."""
+        return int(self.config.max_per_pixel * pixels)
+
+    def _within_cap(self, high_grad, small, grads, pixels) -> torch.Tensor:
+        """The candidates to clone or split, cut to the largest gradients that fit under the cap."""
+        n = high_grad.shape[0]
+        room = self.cap(pixels) - n
+        cost = torch.where(small, 1, self.config.split_count - 1)[high_grad]
+        if int(cost.sum()) <= room:
+            return high_grad
+        candidates = torch.nonzero(high_grad).squeeze(1)
+        order = torch.argsort(grads[candidates], descending=True, stable=True)
+        fits = torch.cumsum(cost[order], dim=0) <= max(room, 0)
+        kept = high_grad.new_zeros(n)
+        kept[candidates[order[fits]]] = True
+        return kept
 
     @torch.no_grad()
     def _reset_opacity(self, params, optimizers) -> None:
