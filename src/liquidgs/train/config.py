@@ -346,6 +346,8 @@ def _matches(value, hint) -> bool:
         return type(value) is hint
     if hint is Path:
         return isinstance(value, str)
+    if typing.get_origin(hint) is tuple:
+        return isinstance(value, list) and all(_matches(item, typing.get_args(hint)[0]) for item in value)
     return True
 
 
@@ -370,6 +372,8 @@ def from_dict(raw: dict, source: Path | str = "config") -> TrainConfig:
                     f"{source}: setting '{prefix}{key}' must be {_describe(hints[key])}, got {value!r}"[:300]
                 )
             is_path = Path in (hints[key], *typing.get_args(hints[key]))
+            if typing.get_origin(hints[key]) is tuple:  # YAML holds lists
+                value = tuple(value)
             kwargs[key] = Path(value) if is_path and value is not None else value
         return cls(**kwargs)
 
