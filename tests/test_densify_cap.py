@@ -11,7 +11,7 @@ import torch
 from liquidgs.cli import main as cli
 from liquidgs.commands.data import quick_look_commands
 from liquidgs.data import generate_synthetic
-from liquidgs.train.config import config_hash, identity, preset_config
+from liquidgs.train.config import config_hash, identity, legacy_identity, preset_config
 from liquidgs.train.strategy import D3DGSStrategy, DensifyConfig
 from test_strategy import make_info, make_setup
 
@@ -25,10 +25,10 @@ def run_cli(args: list[str]) -> tuple[int, str, str]:
     return code, out.getvalue(), err.getvalue()
 
 
-def test_an_uncapped_config_hashes_as_before_the_cap_existed():
+def test_an_uncapped_config_has_the_version_1_identity_of_before_the_cap_existed():
     cfg = preset_config("tiny", Path("scene"))
     assert cfg.densify.max_per_pixel == 0
-    assert "max_per_pixel" not in identity(cfg)["densify"]
+    assert "max_per_pixel" not in legacy_identity(cfg)["densify"]
     capped = preset_config("tiny", Path("scene"))
     capped.densify.max_per_pixel = 1.0
     assert identity(capped)["densify"]["max_per_pixel"] == 1.0

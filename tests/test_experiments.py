@@ -221,7 +221,7 @@ def test_grid_expansion_counts_and_folders(data_root, tmp_path):
     assert sorted({r.lambda_ for r in sde}) == [0.0, 0.1]
     assert all(r.lambda_ == 0.0 for r in experiment.runs if r.field != "sde")
     first = experiment.runs[0]
-    assert first.run_dir.startswith("tiny/puppet/mlp/") and "--iterations" in first.train_args
+    assert first.run_dir.startswith("tiny/puppet/mlp/") and first.train_config().iterations == FAST["iterations"]
     write_manifest(experiment)
     assert read_manifest(tmp_path / "exp").runs == experiment.runs
 

@@ -24,7 +24,8 @@ from liquidgs.experiments.report.figures import PANEL, crop_window
 from liquidgs.experiments.report.references import MEAN, paper_targets
 from liquidgs.experiments.report.tables import METRICS, Cell, Row, Table, to_latex
 from liquidgs.experiments.report.write import score_table
-from liquidgs.experiments.spec import PAPER_LAMBDA
+from liquidgs.experiments.runner import train_command
+from liquidgs.fields.config import PAPER_LAMBDA
 from liquidgs.train.config import preset_config, save_yaml
 from shared_data import PAPER_DIR, optional_lpips_dir, require_shared
 
@@ -189,7 +190,7 @@ def experiment(tmp_path_factory) -> Path:
     plan = expand(spec, root / "data", directory)
     write_manifest(plan)
     for run in plan.runs:
-        assert train_main([*run.train_args, "--out", str(run.folder(directory))]) == 0
+        assert train_main(train_command(run, directory)[4:]) == 0
     if LPIPS_DIR:
         mp.undo()
     return directory
@@ -289,7 +290,7 @@ def hand_built(tmp_path) -> Path:
         for field, lam in (("mlp", 0.0), ("sde", 0.0), ("sde", 0.05), ("sde", 0.1)):
             for seed in (0, 1, 2):
                 run_dir = f"dnerf/{scene}/{field}/l{lam}-s{seed}"
-                runs.append(RunEntry("dnerf", scene, field, lam, seed, "tiny", str(data), run_dir, ()))
+                runs.append(RunEntry("dnerf", scene, field, lam, seed, "tiny", str(data), run_dir, None))
                 cfg = preset_config("tiny", data)
                 cfg.field, cfg.seed, cfg.lambda_ = field, seed, lam
                 save_yaml(cfg, directory / run_dir / "config.yml")

@@ -37,6 +37,7 @@ from liquidgs.experiments.report.margins import (
     scene_margins,
     verdict,
 )
+from liquidgs.experiments.runner import train_command
 from liquidgs.experiments.spec import MINI_SCHEDULE, SHARED_DNERF_SCENES
 from liquidgs.train.config import preset_config, save_yaml
 from shared_data import DNERF_ROOT, require_shared
@@ -138,7 +139,7 @@ def hand_built_margins(tmp_path: Path) -> Path:
     for field, base in (("static", 20.0), ("mlp", 22.0), ("cfc", 20.05)):
         for seed in (0, 1, 2):
             run_dir = f"dnerf/hook/{field}/s{seed}"
-            runs.append(RunEntry("dnerf", "hook", field, 0.0, seed, "tiny", str(data), run_dir, ()))
+            runs.append(RunEntry("dnerf", "hook", field, 0.0, seed, "tiny", str(data), run_dir, None))
             cfg = preset_config("tiny", data)
             cfg.field, cfg.seed = field, seed
             save_yaml(cfg, directory / run_dir / "config.yml")
@@ -204,7 +205,7 @@ def test_margins_spec_trains_static_and_two_fields_over_three_seeds(tmp_path):
     assert all(seeds == {0, 1, 2} for seeds in cells.values())
     assert {s for d, s, _ in cells if d == "synthetic"} == {"puppet-64px", "spinner-64px"}
     static = [r for r in experiment.runs if r.field == "static"]
-    assert len(static) == 18 and all("--field" in r.train_args and "static" in r.train_args for r in static)
+    assert len(static) == 18 and all(r.train_config().field == "static" for r in static)
 
 
 def test_a_static_and_field_grid_runs_and_reports_its_margins(tmp_path):
@@ -218,7 +219,7 @@ def test_a_static_and_field_grid_runs_and_reports_its_margins(tmp_path):
     write_manifest(experiment)
     generate_scenes(experiment)
     for run in experiment.runs:  # in this process: a subprocess each would spend longer importing torch
-        assert train_main([*run.train_args, "--out", str(run.folder(directory))]) == 0
+        assert train_main(train_command(run, directory)[4:]) == 0
     text = write_report(tmp_path / "exp").read_text()
     section = text.split("## Margin over the static model")[1].split("\n## ")[0]
     assert "| scene | foreground share | moving share | static whole PSNR |" in section

@@ -27,9 +27,9 @@ import pytest
 
 from liquidgs.commands.demo import DENSIFY_GRAD_THRESHOLD
 from liquidgs.data import DEFAULT_SYNTHETIC_SCENE, generate_synthetic
-from liquidgs.experiments.plan import RunEntry
+from liquidgs.experiments.plan import RunEntry, run_config
 from liquidgs.experiments.runner import run_local
-from liquidgs.fields.config import DEFAULT_SDE_LAMBDA
+from liquidgs.settings import to_dict
 from liquidgs.train.config import stretched_schedule
 from shared_data import DNERF_ROOT, require_shared
 
@@ -50,18 +50,19 @@ def scores(tmp_path_factory) -> dict[str, dict[str, float]]:
     root = tmp_path_factory.mktemp("quality")
     synthetic = generate_synthetic(DEFAULT_SYNTHETIC_SCENE, root / "scene", size=64, frames=80, seed=0)
     # The demo's scene (puppet, 64x64, 80 frames) with the demo's densification threshold.
-    demo_threshold = ["--densify.grad-threshold", str(DENSIFY_GRAD_THRESHOLD)]
+    demo_threshold = {"densify.grad_threshold": DENSIFY_GRAD_THRESHOLD}
     scenes = {"synthetic": (Path(synthetic) / "dnerf", demo_threshold, 1200)}
     if HELLWARRIOR.is_dir():
-        scenes["hellwarrior"] = (HELLWARRIOR, ["--downscale", "8"], 1000)  # 100x100
+        scenes["hellwarrior"] = (HELLWARRIOR, {"downscale": 8}, 1000)  # 100x100
     entries = []
     for field in ("sde", "cfc", "mlp", "static"):
         for scene, (path, extra, iterations) in scenes.items():
-            args = ["--data", str(path), "--preset", "tiny", "--field", field, "--seed", str(SEED), *extra]
-            args += [*stretched_schedule("tiny", iterations), "--eval.lpips-backbone", "alex", "--eval.fps-frames", "2"]
-            lam = DEFAULT_SDE_LAMBDA if field == "sde" else 0.0
+            run_settings = {"field": field, "seed": SEED, **extra, **stretched_schedule("tiny", iterations),
+                            "eval.lpips_backbone": "alex", "eval.fps_frames": 2}  # fmt: skip
+            cfg = run_config("tiny", path, run_settings, f"{scene}/{field}")
             run_dir = f"{scene}/{field}"
-            entries.append(RunEntry("test", scene, field, lam, SEED, "tiny", str(path), run_dir, tuple(args)))
+            entries.append(RunEntry("test", scene, field, cfg.resolved_lambda(), SEED, "tiny", str(path), run_dir,
+                                    to_dict(cfg)))  # fmt: skip
     outcomes = run_local(entries, root, 2, lambda outcome: None)
     assert all(o.status == "done" for o in outcomes), [o.message for o in outcomes]
     results = {scene: {} for scene in scenes}

@@ -25,7 +25,15 @@ from liquidgs.experiments.report.collect import collect
 from liquidgs.experiments.report.significance import MIN_CLUSTERS, TOO_FEW, paired_difference, smallest_sign_flip_p
 from liquidgs.experiments.report.stress import Comparison, compare, verdict_sentence
 from liquidgs.experiments.spec import load_spec
-from liquidgs.train.config import TrainConfig, config_hash, identity, load_yaml, preset_config
+from liquidgs.train.config import (
+    TrainConfig,
+    config_hash,
+    identity,
+    legacy_config_hash,
+    legacy_identity,
+    load_yaml,
+    preset_config,
+)
 from shared_data import DNERF_ROOT, require_shared
 
 FAST = ["--preset", "tiny", "--iterations", "12", "--warmup", "4", "--init-points", "300",
@@ -157,10 +165,10 @@ def test_bad_perturbations_are_one_line_errors(scene, tmp_path, capsys, flag, va
     assert not (tmp_path / "r").exists()
 
 
-def test_an_unperturbed_config_has_no_perturb_identity_and_keeps_its_hash(scene):
+def test_an_unperturbed_config_has_the_version_1_identity_of_before_perturbations(scene):
     clean = preset_config("tiny", scene)
-    assert "perturb" not in identity(clean)
-    assert identity(clean)["field_options"]["name"] == "mlp"  # the hashed placeholder of older versions
+    assert "perturb" not in legacy_identity(clean)
+    assert legacy_identity(clean)["field_options"]["name"] == "mlp"  # the hashed placeholder of version 1
     perturbed = preset_config("tiny", scene)
     perturbed.perturb.time_jitter = 0.01
     assert identity(perturbed)["perturb"]["time_jitter"] == 0.01
@@ -169,11 +177,11 @@ def test_an_unperturbed_config_has_no_perturb_identity_and_keeps_its_hash(scene)
 
 def test_a_config_yml_of_an_older_version_still_loads(tmp_path, scene):
     cfg = preset_config("tiny", scene)
-    raw = yaml.safe_load(yaml.safe_dump(json.loads(json.dumps(identity(cfg)))))
-    del raw["field_options"]["name"]  # identity adds them back; an old file had them, any value
-    raw["field_options"].update(name="cfc", preset="dnerf", lambda_=None)
+    raw = yaml.safe_load(yaml.safe_dump(json.loads(json.dumps(legacy_identity(cfg)))))
+    raw["field_options"].update(name="cfc", preset="dnerf", lambda_=None)  # an old file had them, any value
     (tmp_path / "config.yml").write_text(yaml.safe_dump(raw))
-    assert config_hash(load_yaml(tmp_path / "config.yml")) == config_hash(cfg)
+    loaded = load_yaml(tmp_path / "config.yml")
+    assert legacy_config_hash(loaded) == legacy_config_hash(cfg) and config_hash(loaded) == config_hash(cfg)
 
 
 def test_perturbation_is_recorded_and_resume_keeps_it(scene, tmp_path, capsys):
@@ -279,8 +287,7 @@ def test_a_yaml_stress_spec_runs_variants_and_perturbations_on_a_synthetic_scene
     assert [r.name for r in experiment.runs] == [
         f"tiny-spinner-16px-{v}{c}-s0" for v in ("cfc", "sde-annealed") for c in conditions
     ]
-    args = experiment.runs[2].train_args
-    assert args[args.index("--perturb.keep-frames") + 1] == "4"
+    assert experiment.runs[2].train_config().perturb.keep_frames == 4
     assert generate_scenes(experiment) == [(tmp_path / "e" / "scenes" / "spinner-16px").resolve()]
     assert generate_scenes(experiment) == []  # once
     assert (Path(experiment.runs[0].data) / "transforms_train.json").is_file()
@@ -409,7 +416,7 @@ def hand_built_stress(directory: Path, scenes, seeds, psnr_of) -> Path:
             for perturb, strength in (("", 0.0), ("time_jitter", 0.1)):
                 for seed in seeds:
                     run_dir = f"dnerf/{scene}/{variant}/{perturb}{strength}-s{seed}"
-                    runs.append(RunEntry("dnerf", scene, field, lam, seed, "tiny", str(data), run_dir, (), variant,
+                    runs.append(RunEntry("dnerf", scene, field, lam, seed, "tiny", str(data), run_dir, None, variant,
                                          perturb, strength))  # fmt: skip
                     cfg = preset_config("tiny", data)
                     cfg.field, cfg.seed, cfg.lambda_ = field, seed, (lam if field == "sde" else None)

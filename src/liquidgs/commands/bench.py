@@ -5,8 +5,6 @@ from __future__ import annotations
 import importlib
 import sys
 
-from liquidgs.args import one_line_usage_errors
-
 BENCHMARKS = {
     "raster": "liquidgs.render.benchmark",
     "fields": "liquidgs.fields.benchmark",
@@ -20,5 +18,5 @@ def main(argv: list[str]) -> int:
         print(f"usage: liquidgs bench {{{','.join(BENCHMARKS)}}} [--json] [options]", file=sys.stderr)
         return 0 if argv and argv[0] in ("-h", "--help") else 2
     module = importlib.import_module(BENCHMARKS[argv[0]])
-    args = one_line_usage_errors(lambda: module.build_parser().parse_args(argv[1:]))
+    args = module.build_parser().parse_args(argv[1:])  # usage errors: one line (settings.ArgumentParser)
     return int(module.run(args) or 0)

@@ -10,10 +10,10 @@ from typing import Literal
 
 import tyro
 
-from liquidgs.args import parse_args
 from liquidgs.data import DataConfig, check_dataset, generate_synthetic
 from liquidgs.data.colmap import Matcher, SolveOptions, import_pycolmap
 from liquidgs.errors import ConfigError
+from liquidgs.settings import parse_flags
 
 
 @dataclass
@@ -248,4 +248,4 @@ def main(argv: list[str]) -> int:
             return 0
         raise ConfigError(f"choose a subcommand: synth, check, video, images or undistort ({usage})")
     spec, run = SUBCOMMANDS[argv[0]]
-    return run(parse_args(spec, argv[1:], prog=f"liquidgs data {argv[0]}", description=spec.__doc__))
+    return run(parse_flags(spec, argv[1:], prog=f"liquidgs data {argv[0]}", description=spec.__doc__))

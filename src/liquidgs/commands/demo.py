@@ -22,18 +22,17 @@ import numpy as np
 import torch
 from rich.console import Console
 
-from liquidgs.args import parse_args
 from liquidgs.atomic import write_text_atomic
-from liquidgs.commands.train import resolve_config
 from liquidgs.data import DEFAULT_SYNTHETIC_SCENE, SYNTHETIC_SCENES, generate_synthetic
 from liquidgs.data.regions import moving_region
 from liquidgs.errors import ConfigError, LiquidGSError
 from liquidgs.eval.lpips import metric_name
 from liquidgs.eval.regions import region_psnr, region_share
-from liquidgs.experiments.plan import RunEntry
+from liquidgs.experiments.plan import RunEntry, run_config
 from liquidgs.experiments.runner import RunOutcome, default_parallel, run_local
-from liquidgs.fields.config import DEFAULT_SDE_LAMBDA
+from liquidgs.fields.config import FIELD_LABELS, FIELD_NAMES
 from liquidgs.media import labelled, to_uint8, write_png, write_video
+from liquidgs.settings import parse_flags, to_dict
 from liquidgs.train.config import stretched_schedule
 from liquidgs.train.run import TrainedRun, load_run
 from liquidgs.train.trainer import load_run_dataset
@@ -46,8 +45,8 @@ DENSIFY_GRAD_THRESHOLD = 0.0014
 """Twice the tiny preset's: a 64 px image needs fewer Gaussians. Measured (MLP, 2,000
 iterations): 3,920 Gaussians instead of 7,912 at the same PSNR (25.81 vs 25.90 dB), half
 the time per step."""
-FIELDS = {"static": "static 3DGS", "mlp": "D-3DGS MLP", "cfc": "Liquid CfC", "sde": "SDE-LNN"}
-"""The runs of the demo: the static model is the floor the three deformation fields must beat."""
+FIELDS = FIELD_NAMES
+"""The runs of the demo, every field: the static model is the floor the deformation fields must beat."""
 
 
 @dataclass
@@ -68,27 +67,31 @@ class DemoArgs:
 def run_entry(args: DemoArgs, name: str, data_path: Path) -> RunEntry:
     """One demo run: the tiny preset stretched to args.iterations (see stretched_schedule);
     the report shows final scores only."""
-    flags = ["--data", str(data_path), "--preset", "tiny", "--field", name, "--seed", str(args.seed)]
-    flags += ["--device", args.device, "--densify.grad-threshold", str(DENSIFY_GRAD_THRESHOLD)]
-    flags += stretched_schedule("tiny", args.iterations)
+    run_settings = {
+        "field": name,
+        "seed": args.seed,
+        "device": args.device,
+        "densify.grad_threshold": DENSIFY_GRAD_THRESHOLD,
+        **stretched_schedule("tiny", args.iterations),
+    }
+    cfg = run_config("tiny", data_path, run_settings, f"demo run {name}")
     return RunEntry(
         dataset="synthetic",
         scene=args.scene,
         field=name,
-        lambda_=DEFAULT_SDE_LAMBDA if name == "sde" else 0.0,
+        lambda_=cfg.resolved_lambda(),
         seed=args.seed,
         preset="tiny",
         data=str(data_path),
         run_dir=f"runs/{name}",
-        train_args=tuple(flags),
+        config=to_dict(cfg),
     )
 
 
 def check_settings(args: DemoArgs) -> None:
     """Every run's settings, checked before the scene is generated."""
     for name in FIELDS:
-        entry = run_entry(args, name, args.out)
-        resolve_config([*entry.train_args, "--out", str(entry.folder(args.out))])
+        run_entry(args, name, args.out)
 
 
 def train_fields(args: DemoArgs, data_path: Path, console: Console) -> dict[str, Path]:
@@ -153,14 +156,16 @@ def write_report(args: DemoArgs, runs: dict[str, Path], data_path: Path) -> Path
     index = fastest_moving_frame(loaded["mlp"], frames)
     frame = frames[index]
     panels = [labelled(enlarged(frame.image_uint8()), "ground truth")]
-    panels += [labelled(render(run, frame.viewmat, frame, frame.time), FIELDS[n]) for n, run in loaded.items()]
+    panels += [labelled(render(run, frame.viewmat, frame, frame.time), FIELD_LABELS[n]) for n, run in loaded.items()]
     write_png(args.out / "side_by_side.png", np.concatenate(panels, axis=1))
 
     fixed = frames[0]
     sweep = []
     for i in range(48):
         t = i / 47
-        row = [labelled(render(run, fixed.viewmat, fixed, t), f"{FIELDS[n]} t={t:.2f}") for n, run in loaded.items()]
+        row = [
+            labelled(render(run, fixed.viewmat, fixed, t), f"{FIELD_LABELS[n]} t={t:.2f}") for n, run in loaded.items()
+        ]
         sweep.append(np.concatenate(row, axis=1))
     write_video(args.out / "sweep.mp4", sweep, fps=12)
 
@@ -197,7 +202,7 @@ def write_report(args: DemoArgs, runs: dict[str, Path], data_path: Path) -> Path
         scores = (f"{fmt(final['psnr'], 2)} | {fmt(moving[name], 2)} | {fmt(final['ssim'], 4)} | "
                   f"{fmt(final.get('lpips'), 4)}")  # fmt: skip
         cost = f"{res['field_parameters']:,} | {res['fps']:.1f} | {res['train_seconds']:.0f} | {res['num_gaussians']:,}"
-        lines.append(f"| {FIELDS[name]} | {scores} | {cost} |")
+        lines.append(f"| {FIELD_LABELS[name]} | {scores} | {cost} |")
     lines += [
         "",
         f"Moving-region PSNR: over the test pixels whose ground truth changes between neighbouring frames "
@@ -207,7 +212,7 @@ def write_report(args: DemoArgs, runs: dict[str, Path], data_path: Path) -> Path
         lpips_desc + ".",
         "",
         f"![side by side](side_by_side.png) Fastest-moving test frame `{frame.name}` (t = {frame.time:.3f}): "
-        "ground truth | " + " | ".join(FIELDS.values()) + ".",
+        "ground truth | " + " | ".join(FIELD_LABELS.values()) + ".",
         "",
         "`sweep.mp4`: the runs side by side, time 0 -> 1, from test camera "
         f"`{fixed.name}`. Runs: " + ", ".join(f"`{p}`" for p in runs.values()) + ".",
@@ -217,7 +222,7 @@ def write_report(args: DemoArgs, runs: dict[str, Path], data_path: Path) -> Path
 
 
 def main(argv: list[str]) -> int:
-    args = parse_args(DemoArgs, argv, prog="liquidgs demo", description=__doc__)
+    args = parse_flags(DemoArgs, argv, prog="liquidgs demo", description=__doc__)
     if args.scene not in SYNTHETIC_SCENES:
         raise ConfigError(f"unknown synthetic scene '{args.scene}' (choose from {', '.join(SYNTHETIC_SCENES)})")
     if not 8 <= args.size <= 4096:

@@ -14,10 +14,10 @@ from typing import Literal
 import torch
 from rich.console import Console
 
-from liquidgs.args import parse_args
 from liquidgs.atomic import write_json_atomic
 from liquidgs.errors import ConfigError
 from liquidgs.eval import LPIPS, LPIPSUnavailable, describe_lpips, evaluate_views
+from liquidgs.settings import parse_flags
 from liquidgs.train.run import load_run
 from liquidgs.train.trainer import load_run_dataset
 
@@ -43,7 +43,7 @@ def evaluate_run(args: EvalArgs) -> dict:
     quantize = cfg.eval.quantize_8bit if args.quantize_8bit is None else args.quantize_8bit
     dataset = load_run_dataset(cfg)
     if args.split not in dataset.splits:
-        raise ConfigError(f"{cfg.data}: the dataset has no '{args.split}' split")
+        raise ConfigError(f"{cfg.data.path}: the dataset has no '{args.split}' split")
     try:
         lpips, lpips_error = (
             LPIPS(
@@ -83,7 +83,7 @@ def evaluate_run(args: EvalArgs) -> dict:
 
 
 def main(argv: list[str]) -> int:
-    args = parse_args(EvalArgs, argv, prog="liquidgs eval", description=__doc__)
+    args = parse_flags(EvalArgs, argv, prog="liquidgs eval", description=__doc__)
     record = evaluate_run(args)
     unfinished = "" if record["finished"] else f" (unfinished run, {record['iterations']} planned)"
     Console().print(

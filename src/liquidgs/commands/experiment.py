@@ -21,11 +21,11 @@ import tyro
 from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
-from liquidgs.args import parse_args
 from liquidgs.errors import ConfigError
 from liquidgs.experiments import BUILTIN_SPECS, expand, generate_scenes, load_spec, read_manifest, write_manifest
 from liquidgs.experiments.plan import MANIFEST
 from liquidgs.experiments.runner import RunOutcome, finished_elsewhere, run_experiment
+from liquidgs.settings import parse_flags
 
 EXPERIMENTS_ROOT = Path("outputs") / "experiments"
 
@@ -148,9 +148,9 @@ def main(argv: list[str]) -> int:
     action, rest = argv[0], argv[1:]
     console = Console(stderr=True, soft_wrap=True)  # failure lines hold paths: never wrap them
     if action == "run":
-        return run(parse_args(RunArgs, rest, prog="liquidgs experiment run", description=__doc__), console)
+        return run(parse_flags(RunArgs, rest, prog="liquidgs experiment run", description=__doc__), console)
     if action == "report":
-        return report(parse_args(ReportArgs, rest, prog="liquidgs experiment report", description=__doc__), console)
+        return report(parse_flags(ReportArgs, rest, prog="liquidgs experiment report", description=__doc__), console)
     if action == "list":
         return list_specs()
     raise ConfigError(f"unknown experiment action '{action}' (run, report or list)")

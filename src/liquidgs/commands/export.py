@@ -16,10 +16,10 @@ import torch
 from rich.console import Console
 from rich.progress import track
 
-from liquidgs.args import parse_args
 from liquidgs.atomic import write_atomic
 from liquidgs.errors import ConfigError
 from liquidgs.gaussians import write_ply
+from liquidgs.settings import parse_flags
 from liquidgs.train.run import TrainedRun, load_run
 
 
@@ -88,7 +88,7 @@ def export_run(args: ExportArgs, console: Console | None = None) -> list[Path]:
 
 
 def main(argv: list[str]) -> int:
-    args = parse_args(ExportArgs, argv, prog="liquidgs export", description=__doc__)
+    args = parse_flags(ExportArgs, argv, prog="liquidgs export", description=__doc__)
     console = Console(stderr=True)
     written = export_run(args, console)
     console.print(f"wrote {len(written)} files under {written[0].parent}")

@@ -23,12 +23,12 @@ import torch
 from rich.console import Console
 from rich.progress import track
 
-from liquidgs.args import parse_args
 from liquidgs.atomic import write_json_atomic
 from liquidgs.errors import ConfigError
 from liquidgs.media import depth_to_uint8, to_uint8, write_png, write_video
 from liquidgs.render.camera_path import CameraPath, read_camera_path
 from liquidgs.render.cameras import orbit
+from liquidgs.settings import parse_flags
 from liquidgs.train.run import TrainedRun, load_run
 from liquidgs.train.trainer import load_run_dataset
 
@@ -138,7 +138,7 @@ def render_run(args: RenderArgs, console: Console | None = None) -> dict[str, Pa
 
 
 def main(argv: list[str]) -> int:
-    args = parse_args(RenderArgs, argv, prog="liquidgs render", description=__doc__)
+    args = parse_flags(RenderArgs, argv, prog="liquidgs render", description=__doc__)
     console = Console(stderr=True)
     written = render_run(args, console)
     for name, path in written.items():

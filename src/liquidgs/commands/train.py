@@ -2,31 +2,33 @@
 
     liquidgs train --data PATH --field {static,mlp,cfc,sde} [--preset NAME] [--lambda L]
                    [--iterations N] [--downscale K] [--seed S] [--out DIR] [--resume]
+    liquidgs train --config FILE [--out DIR] [--resume]
 
 Every other setting of TrainConfig is a flag too (`liquidgs train --help`), with the
-preset's values as defaults. The resolved configuration is written to DIR/config.yml.
+preset's values as defaults. The resolved configuration is written to DIR/config.yml;
+--config FILE trains such a configuration as it is (flags on top still apply).
 """
 
 from __future__ import annotations
 
-import argparse
+import dataclasses
 import shlex
 from pathlib import Path
 
 from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
-from liquidgs.args import one_line_usage_errors, parse_args
 from liquidgs.errors import ConfigError
 from liquidgs.eval import describe_lpips
-from liquidgs.train.config import TrainConfig, config_hash, identity, load_yaml, preset_config, validate
+from liquidgs.fields.config import PRESET_NAMES
+from liquidgs.settings import flatten, parse_flag_settings, print_help, wants_help, with_settings
+from liquidgs.train.config import TrainConfig, identity, load_yaml, preset_config, run_folder
 from liquidgs.train.runlock import run_folder_lock
 from liquidgs.train.trainer import (
     CONFIG,
     PER_VIEW,
     RESULTS,
     Trainer,
-    data_config,
     read_results,
     run_directory_state,
     stale_temporaries,
@@ -34,57 +36,61 @@ from liquidgs.train.trainer import (
 
 
 def default_run_dir(cfg: TrainConfig) -> Path:
-    return Path("outputs") / Path(cfg.data).resolve().name / cfg.field / config_hash(cfg)
+    return run_folder(cfg, Path("outputs") / cfg.data.path.resolve().name / cfg.field)
 
 
 def differing_settings(a: TrainConfig, b: TrainConfig) -> list[str]:
-    def flatten(d: dict, prefix: str = "") -> dict:
-        flat = {}
-        for key, value in d.items():
-            if isinstance(value, dict):
-                flat.update(flatten(value, f"{prefix}{key}."))
-            else:
-                flat[f"{prefix}{key}"] = value
-        return flat
-
     fa, fb = flatten(identity(a)), flatten(identity(b))
     return sorted(k for k in fa.keys() | fb.keys() if fa.get(k) != fb.get(k))
 
 
-def resolve_config(argv: list[str]) -> tuple[TrainConfig, Path]:
-    """Preset defaults (or the stored config on --resume), then the command line on top."""
-    pre = argparse.ArgumentParser(add_help=False)
-    pre.add_argument("--data", type=Path)
-    pre.add_argument("--preset", default=None)
-    pre.add_argument("--out", type=Path)
-    pre.add_argument("--resume", action="store_true")
-    known, _ = one_line_usage_errors(lambda: pre.parse_known_args(argv))
-    help_asked = any(a in ("-h", "--help") for a in argv)
+def _config_file(argv: list[str]) -> tuple[Path | None, list[str]]:
+    """--config FILE (a resolved run configuration, e.g. written by an experiment), and the rest."""
+    if "--config" not in argv:
+        return None, argv
+    at = argv.index("--config")
+    if at + 1 == len(argv):
+        raise ConfigError("--config needs a FILE (a run configuration, as a run folder's config.yml)")
+    return Path(argv[at + 1]), argv[:at] + argv[at + 2 :]
 
-    stored = None
-    if known.resume:
-        if known.out is None:
+
+def _help_preset(argv: list[str]) -> str:
+    at = argv.index("--preset") if "--preset" in argv else -1
+    return argv[at + 1] if 0 <= at < len(argv) - 1 and argv[at + 1] in PRESET_NAMES else "dnerf"
+
+
+def resolve_config(argv: list[str]) -> tuple[TrainConfig, Path]:
+    """The defaults - a preset's, the stored run's on --resume, or a --config FILE - with the
+    command line on top; every setting parsed once and checked when the config is built."""
+    if wants_help(argv):
+        print_help(TrainConfig, "liquidgs train", __doc__, preset_config(_help_preset(argv), Path(".")))
+    config_file, argv = _config_file(argv)
+    flags = parse_flag_settings(TrainConfig, argv, "liquidgs train")
+    out, stored = flags.get("out"), None
+    if flags.get("resume"):
+        if out is None:
             raise ConfigError("--resume needs --out DIR, the run folder to continue")
-        if not (known.out / CONFIG).is_file():
-            raise ConfigError(f"{known.out}: no run to resume (no {CONFIG})")
-        stored = load_yaml(known.out / CONFIG)
-        default = stored
+        if not (out / CONFIG).is_file():
+            raise ConfigError(f"{out}: no run to resume (no {CONFIG})")
+        stored = base = load_yaml(out / CONFIG)
+    elif config_file is not None:
+        if not config_file.is_file():
+            raise ConfigError(f"{config_file}: no such run configuration (--config)")
+        base = load_yaml(config_file)
     else:
-        if known.data is None and not help_asked:
+        if "data.path" not in flags:
             raise ConfigError("--data PATH is required")
-        default = preset_config(known.preset or "dnerf", known.data or Path("."))
-    cfg = parse_args(TrainConfig, argv, prog="liquidgs train", description=__doc__, default=default)
-    validate(cfg)
+        base = preset_config(flags.get("preset", "dnerf"), flags["data.path"])
+    cfg = with_settings(base, flags, "liquidgs train")
     if stored is not None:
         changed = [k for k in differing_settings(cfg, stored) if k != "iterations"]
         if changed:
             raise ConfigError(
-                f"{known.out / CONFIG}: --resume continues the run as configured; these settings differ: "
+                f"{out / CONFIG}: --resume continues the run as configured; these settings differ: "
                 + ", ".join(changed)
             )
     run_dir = cfg.out or default_run_dir(cfg)
-    cfg.out = run_dir
-    return cfg, run_dir
+    return dataclasses.replace(cfg, out=run_dir), run_dir
 
 
 def check_run_dir(cfg: TrainConfig, run_dir: Path) -> str:
@@ -151,7 +157,7 @@ def train(cfg: TrainConfig, run_dir: Path, console: Console | None = None, datas
         console.print(f"{run_dir}: already finished; results in {run_dir / RESULTS}")
         return read_results(run_dir)
     # Load (and so validate) the data before anything is written.
-    dataset = dataset if dataset is not None else load_dataset(data_config(cfg))
+    dataset = dataset if dataset is not None else load_dataset(cfg.data)
     trainer = Trainer(cfg, run_dir, dataset)
     for note in trainer.notes:
         console.print(f"[yellow]note:[/] {note}")

@@ -25,8 +25,8 @@ from typing import Annotated
 import torch
 import tyro
 
-from liquidgs.args import parse_args
 from liquidgs.errors import ConfigError
+from liquidgs.settings import parse_flags
 
 MAX_PORT = 65535
 
@@ -84,7 +84,7 @@ def load_scenes(args: ViewArgs):
 
 
 def main(argv: list[str]) -> int:
-    args = parse_args(ViewArgs, argv, prog="liquidgs view", description=__doc__)
+    args = parse_flags(ViewArgs, argv, prog="liquidgs view", description=__doc__)
     check_args(args)
     if args.threads is not None:
         torch.set_num_threads(args.threads)

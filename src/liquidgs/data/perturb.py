@@ -52,7 +52,7 @@ class PerturbConfig:
         default = PerturbConfig()
         return {k: v for k, v in dataclasses.asdict(self).items() if v != getattr(default, k)}
 
-    def validate(self) -> None:
+    def __post_init__(self) -> None:  # checked when built, as every config
         for name in ("time_jitter", "pose_rot_deg", "pose_trans", "image_noise"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
@@ -128,7 +128,6 @@ def _select(train: list[Frame], test: list[Frame], cfg: PerturbConfig) -> tuple[
 
 def perturb_dataset(dataset: SceneDataset, cfg: PerturbConfig, seed: int) -> SceneDataset:
     """The dataset with its training split perturbed as `cfg` says (itself when nothing is on)."""
-    cfg.validate()
     if not cfg.active:
         return dataset
     train, test = _select(dataset.train, dataset.test, cfg)

@@ -4,10 +4,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
+from typing import Annotated, Literal
 
 import numpy as np
 import torch
+import tyro
 
 from liquidgs.data.images import ImageLoader
 from liquidgs.errors import ConfigError
@@ -23,9 +24,10 @@ NERFIES_PRESETS = {"nerfds": 1, "vrig": 4, "interp": 2}
 class DataConfig:
     """Where and how to read a dynamic scene."""
 
-    path: Path
+    # Flag names: TrainConfig shows these settings without a prefix (--data, --data-format, --downscale).
+    path: Annotated[Path, tyro.conf.arg(name="data")]
     """Scene folder (D-NeRF: transforms_*.json; Nerfies/NeRF-DS/HyperNeRF: dataset.json)."""
-    format: Literal["auto", "dnerf", "nerfies"] = "auto"
+    format: Annotated[Literal["auto", "dnerf", "nerfies"], tyro.conf.arg(name="data_format")] = "auto"
     """`auto` detects the format from the files in the folder, never from its name."""
     downscale: int | None = None
     """Image downscale factor. None: 1 for D-NeRF (area-averaged for other values), the split

@@ -1,8 +1,9 @@
-"""Expanding a spec into runs: one resolved `liquidgs train` configuration and run folder each.
+"""Expanding a spec into runs: one resolved training configuration and run folder each.
 
-Each run's configuration is built exactly as `liquidgs train` builds it (the preset's
-defaults, then the flags), so the folder named by its config hash here is the folder the
-training command itself would choose under the experiment's output folder.
+Each run's configuration is built as `liquidgs train` builds it (the preset's defaults, then
+the settings on top), as a TrainConfig; the executor hands it to the run as a file
+(`liquidgs train --config FILE`), so the folder named by its config hash here is the folder
+the training command itself would choose under the experiment's output folder.
 """
 
 from __future__ import annotations
@@ -13,16 +14,19 @@ import shutil
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-from liquidgs.args import parse_args
+from liquidgs import settings
 from liquidgs.atomic import write_json_atomic
-from liquidgs.data import generate_synthetic
+from liquidgs.data import DataConfig, generate_synthetic
 from liquidgs.errors import ConfigError, LiquidGSError
 from liquidgs.experiments.spec import ExperimentSpec, Grid, SyntheticScene, Variant
-from liquidgs.train.config import TrainConfig, config_hash, preset_config, validate
+from liquidgs.train.config import TrainConfig, from_dict, preset_config, run_folder
 from liquidgs.train.trainer import RESULTS
 
 MANIFEST = "experiment.json"
-MANIFEST_FORMAT = "liquidgs-experiment-1"
+MANIFEST_FORMAT = "liquidgs-experiment-2"
+MANIFEST_FORMATS = ("liquidgs-experiment-1", MANIFEST_FORMAT)
+"""Format 1 listed each run's `liquidgs train` arguments; it is read for reports (its runs have
+no config: `experiment run` expands the spec again and writes format 2)."""
 SCENES = "scenes"
 """Sub-folder of an experiment holding the built-in scenes it generated."""
 
@@ -39,8 +43,9 @@ class RunEntry:
     preset: str
     data: str
     run_dir: str
-    train_args: tuple[str, ...]
-    """`liquidgs train` arguments, without --out and --resume (the executor adds those)."""
+    config: dict | None
+    """The run's resolved TrainConfig as plain values (no out / resume: the executor adds those);
+    None in a manifest of format 1."""
     variant: str = ""
     """The spec's name for this field configuration ('' when fields x lambdas made it)."""
     perturb: str = ""
@@ -63,6 +68,13 @@ class RunEntry:
     def is_done(self, experiment_dir: Path) -> bool:
         return (self.folder(experiment_dir) / RESULTS).is_file()
 
+    def train_config(self) -> TrainConfig:
+        if self.config is None:
+            raise LiquidGSError(
+                f"{self.name}: listed by an older experiment manifest; run `liquidgs experiment run` again"
+            )
+        return from_dict(self.config, f"run {self.name}")
+
 
 @dataclass(frozen=True)
 class Experiment:
@@ -76,38 +88,14 @@ class Experiment:
     """Built-in scenes the spec names and the folders `experiment run` generates them in."""
 
 
-def flag(key: str) -> str:
-    """An override key ('eval.every', 'field_options.noise') as the `liquidgs train` flag."""
-    return "--" + key.replace("_", "-")
-
-
-def override_args(overrides: dict) -> list[str]:
-    args: list[str] = []
-    for key, value in overrides.items():
-        if isinstance(value, bool):
-            args.append(flag(key) if value else _negated(flag(key)))
-        elif isinstance(value, (list, tuple)):
-            args += [flag(key), *map(str, value)]
-        else:
-            args += [flag(key), "None" if value is None else str(value)]
-    return args
-
-
-def _negated(name: str) -> str:
-    """tyro's negative boolean flag: --eval.no-quantize-8bit for eval.quantize_8bit."""
-    head, _, last = name[2:].rpartition(".")
-    return f"--{head + '.' if head else ''}no-{last}"
-
-
-def resolve_train_config(preset: str, args: list[str], source: str) -> TrainConfig:
-    """The configuration `liquidgs train --preset PRESET ARGS` would run, or one error line."""
-    data = Path(args[args.index("--data") + 1])
+def run_config(preset: str, data: Path, run_settings: dict, source: str) -> TrainConfig:
+    """The configuration `liquidgs train --preset PRESET --data DATA` with these settings would
+    run (settings by dotted key or flag name: 'eval.every', 'downscale'), or one error line."""
     try:
-        cfg = parse_args(TrainConfig, args, prog="liquidgs train", default=preset_config(preset, data))
-        validate(cfg)
+        keyed = settings.setting_keys(TrainConfig, run_settings, source)
+        return settings.with_settings(preset_config(preset, DataConfig(path=data)), keyed, source)
     except ConfigError as err:
         raise ConfigError(f"{source}: not a valid `liquidgs train` setting ({err})") from None
-    return cfg
 
 
 def synthetic_folder(directory: Path, scene: SyntheticScene) -> Path:
@@ -146,8 +134,8 @@ def _scene_folder(data_root: Path, directory: Path, grid: Grid, scene: str, sour
     )
 
 
-def _field_args(variant: Variant) -> list[str]:
-    return ["--field", variant.field] + (["--lambda", repr(variant.lambda_)] if variant.field == "sde" else [])
+def _field_settings(variant: Variant) -> dict:
+    return {"field": variant.field, **({"lambda_": variant.lambda_} if variant.field == "sde" else {})}
 
 
 def _check_overrides(grid: Grid, data: Path, source: str) -> None:
@@ -157,15 +145,15 @@ def _check_overrides(grid: Grid, data: Path, source: str) -> None:
     checks = [("overrides", variants[0], grid.overrides)]
     checks += [(f"variants.{v.label}.overrides", v, v.overrides) for v in variants]
     for where, variant, overrides in checks:
-        base = ["--data", str(data), *_field_args(variant)]
+        base = _field_settings(variant)
         try:
-            resolve_train_config(grid.preset, base + override_args(overrides), "")
+            run_config(grid.preset, data, {**base, **overrides}, "")
             continue
         except ConfigError:
             pass
         for key, value in overrides.items():
-            resolve_train_config(grid.preset, base + override_args({key: value}), f"{source}: {where}.{key}={value!r}")
-        resolve_train_config(grid.preset, base + override_args(overrides), f"{source}: {where}")
+            run_config(grid.preset, data, {**base, key: value}, f"{source}: {where}.{key}={value!r}")
+        run_config(grid.preset, data, {**base, **overrides}, f"{source}: {where}")
 
 
 def expand(spec: ExperimentSpec, data_root: str | Path, directory: str | Path) -> Experiment:
@@ -191,14 +179,15 @@ def expand(spec: ExperimentSpec, data_root: str | Path, directory: str | Path) -
                     condition = {f"perturb.{perturb}": _strength_value(perturb, strength)} if perturb else {}
                     overrides = {**grid.overrides, **variant.overrides, **condition}
                     for seed in grid.seeds:
-                        args = ["--data", str(folders[scene]), *_field_args(variant), "--preset", grid.preset]
-                        args += ["--seed", str(seed), *override_args(overrides)]
-                        cfg = resolve_train_config(grid.preset, args, f"{source}: {scene}/{variant.label}")
-                        run_dir = Path(grid.dataset) / label / variant.field / config_hash(cfg)
+                        run_settings = {**_field_settings(variant), "seed": seed, **overrides}
+                        where = f"{source}: {scene}/{variant.label}"
+                        cfg = run_config(grid.preset, folders[scene], run_settings, where)
+                        parent = Path(directory) / grid.dataset / label / variant.field
+                        run_dir = run_folder(cfg, parent).relative_to(Path(directory))
                         runs.append(
                             RunEntry(grid.dataset, label, variant.field, variant.lambda_, seed, grid.preset,
-                                     str(folders[scene]), run_dir.as_posix(), tuple(args), variant.name, perturb,
-                                     strength)  # fmt: skip
+                                     str(folders[scene]), run_dir.as_posix(), settings.to_dict(cfg), variant.name,
+                                     perturb, strength)  # fmt: skip
                         )
     seen: dict[str, RunEntry] = {}
     for run in runs:
@@ -222,7 +211,7 @@ def write_manifest(experiment: Experiment) -> Path:
             "format": MANIFEST_FORMAT,
             "spec": experiment.spec,
             "data_root": experiment.data_root,
-            "runs": [{**asdict(r), "train_args": list(r.train_args)} for r in experiment.runs],
+            "runs": [asdict(r) for r in experiment.runs],
         },
     )
 
@@ -235,9 +224,15 @@ def read_manifest(directory: str | Path) -> Experiment:
         raise LiquidGSError(f"{directory}: not an experiment folder (no {MANIFEST}; run `liquidgs experiment run`)")
     try:
         raw = json.loads(path.read_text())
-        if raw.get("format") != MANIFEST_FORMAT:
+        if raw.get("format") not in MANIFEST_FORMATS:
             raise ValueError(f"format is {raw.get('format')!r}, expected {MANIFEST_FORMAT!r}")
-        runs = tuple(RunEntry(**{**r, "train_args": tuple(r["train_args"])}) for r in raw["runs"])
+        runs = tuple(_manifest_run(r) for r in raw["runs"])
     except (ValueError, KeyError, TypeError, UnicodeDecodeError) as err:
         raise LiquidGSError(f"{path}: unreadable experiment manifest ({err})") from None
     return Experiment(raw["spec"], raw["data_root"], directory, runs)
+
+
+def _manifest_run(raw: dict) -> RunEntry:
+    if "train_args" in raw:  # format 1
+        raw = {k: v for k, v in raw.items() if k != "train_args"} | {"config": None}
+    return RunEntry(**raw)

@@ -23,6 +23,7 @@ from queue import Queue
 
 from liquidgs.errors import ConfigError
 from liquidgs.experiments.plan import Experiment, RunEntry
+from liquidgs.train.config import legacy_config_hash, save_yaml
 from liquidgs.train.trainer import CHECKPOINT, RESULTS
 
 LOGS = "logs"
@@ -42,12 +43,20 @@ def log_path(experiment_dir: Path, entry: RunEntry) -> Path:
     return Path(experiment_dir) / LOGS / f"{entry.name}.log"
 
 
+def config_path(experiment_dir: Path, entry: RunEntry) -> Path:
+    return Path(experiment_dir) / LOGS / f"{entry.name}.config.yml"
+
+
 def train_command(entry: RunEntry, experiment_dir: Path) -> list[str]:
+    """`liquidgs train` on the run's resolved configuration (written next to its log), or on the
+    run folder's own once it has a checkpoint to resume."""
     folder = entry.folder(experiment_dir)
-    command = [sys.executable, "-m", "liquidgs.cli", "train", *entry.train_args, "--out", str(folder)]
+    command = [sys.executable, "-m", "liquidgs.cli", "train", "--out", str(folder)]
     if (folder / CHECKPOINT).is_file():
-        command.append("--resume")
-    return command
+        return [*command, "--resume"]
+    config = config_path(experiment_dir, entry)
+    save_yaml(entry.train_config(), config)
+    return [*command, "--config", str(config)]
 
 
 def _die_with_parent() -> None:
@@ -201,8 +210,11 @@ def finished_elsewhere(entry: RunEntry, experiment_dir: Path) -> Path | None:
     folder = entry.folder(directory)
     if folder.exists() or folder.is_symlink() or not directory.parent.is_dir():
         return None
-    siblings = (p for p in sorted(directory.parent.iterdir()) if p.is_dir() and p.resolve() != directory.resolve())
-    return next((p / entry.run_dir for p in siblings if (p / entry.run_dir / RESULTS).is_file()), None)
+    siblings = [p for p in sorted(directory.parent.iterdir()) if p.is_dir() and p.resolve() != directory.resolve()]
+    names = [Path(entry.run_dir)]
+    if entry.config is not None:  # a sibling made before config identity 2 holds it under its version-1 hash
+        names.append(names[0].parent / legacy_config_hash(entry.train_config()))
+    return next((p / name for p in siblings for name in names if (p / name / RESULTS).is_file()), None)
 
 
 def share_finished_runs(experiment: Experiment) -> list[tuple[str, str]]:

@@ -38,9 +38,10 @@ from pathlib import Path
 
 import yaml
 
+from liquidgs import settings
 from liquidgs.data import SYNTHETIC_SCENES, PerturbConfig
 from liquidgs.errors import ConfigError
-from liquidgs.train.config import FIELDS, PRESETS
+from liquidgs.fields.config import FIELD_NAMES, PAPER_LAMBDA, PRESET_NAMES, FieldConfig, default_lambda
 
 GRID_KEYS = ("dataset", "preset", "scenes", "fields", "lambdas", "variants", "perturb", "seeds", "overrides")
 VARIANT_KEYS = ("field", "lambda", "overrides")
@@ -52,7 +53,6 @@ DNERF_SCENES = ("hellwarrior", "mutant", "hook", "bouncingballs", "lego", "trex"
 NERFDS_SCENES = ("sieve", "plate", "bell", "press", "cup", "as", "basin")
 # The four D-NeRF scenes every developer and CI machine has (../shared/data/dnerf).
 SHARED_DNERF_SCENES = ("bouncingballs", "hellwarrior", "lego", "standup")
-PAPER_LAMBDA = 0.05
 NOISE_STUDY_LAMBDAS = (0.0, 0.05, 0.1, 0.2)
 
 
@@ -315,29 +315,28 @@ BUILTIN_SPECS["stress-mini"] = ExperimentSpec(
 
 
 def _as_tuple(value, key: str, source: str, kind) -> tuple:
+    """One value or a list of them, each checked as a setting of type `kind` is (settings.matches)."""
     values = value if isinstance(value, (list, tuple)) else [value]
     if not values:
         raise ConfigError(f"{source}: '{key}' is empty")
-    out = []
     for v in values:
-        if kind is float and isinstance(v, (int, float)) and not isinstance(v, bool):
-            v = float(v)
-        if kind is int and isinstance(v, bool):
-            raise ConfigError(f"{source}: '{key}' must hold integers, got {v!r}")
-        if not isinstance(v, kind):
-            raise ConfigError(f"{source}: '{key}' must hold {kind.__name__} values, got {v!r}")
-        out.append(v)
-    return tuple(out)
+        if not settings.matches(v, kind):
+            kind_text = settings.describe(kind).split(" ", 1)[1]
+            raise ConfigError(f"{source}: '{key}' must hold {kind_text} values, got {v!r}")
+    return tuple(kind(v) for v in values)
 
 
 def _check_field(name, source: str, key: str) -> None:
-    if name not in FIELDS:
-        raise ConfigError(f"{source}: '{key}' names unknown field '{name}' (choose from {', '.join(FIELDS)})")
+    if name not in FIELD_NAMES:
+        raise ConfigError(f"{source}: '{key}' names unknown field '{name}' (choose from {', '.join(FIELD_NAMES)})")
 
 
 def _check_lambda(lam: float, source: str, key: str) -> None:
-    if not math.isfinite(lam) or lam < 0:
-        raise ConfigError(f"{source}: '{key}' must be finite and >= 0, got {lam}")
+    """The sde field's own rule for lambda (FieldConfig's)."""
+    try:
+        FieldConfig(name="sde", lambda_=lam)
+    except ConfigError as err:
+        raise ConfigError(f"{source}: '{key}': {err}") from None
 
 
 def _overrides(raw, source: str, key: str = "overrides") -> dict:
@@ -361,8 +360,7 @@ def _variants(raw, source: str) -> tuple[Variant, ...]:
         if unknown:
             raise ConfigError(f"{source}: '{where}' has unknown key '{unknown[0]}' (known: {', '.join(VARIANT_KEYS)})")
         _check_field(body["field"], source, f"{where}.field")
-        default_lambda = PAPER_LAMBDA if body["field"] == "sde" else 0.0
-        lam = body.get("lambda", default_lambda)
+        lam = body.get("lambda", default_lambda(body["field"]))
         if isinstance(lam, bool) or not isinstance(lam, (int, float)):
             raise ConfigError(f"{source}: '{where}.lambda' must be a number, got {lam!r}")
         _check_lambda(float(lam), source, f"{where}.lambda")
@@ -396,8 +394,8 @@ def _grid(raw: dict, source: str) -> Grid:
     if "variants" in raw and ("fields" in raw or "lambdas" in raw):
         raise ConfigError(f"{source}: give either 'variants' or 'fields'/'lambdas', not both")
     preset = raw["preset"]
-    if preset not in PRESETS:
-        raise ConfigError(f"{source}: 'preset' is '{preset}' (choose from {', '.join(PRESETS)})")
+    if preset not in PRESET_NAMES:
+        raise ConfigError(f"{source}: 'preset' is '{preset}' (choose from {', '.join(PRESET_NAMES)})")
     variants = _variants(raw["variants"], source) if "variants" in raw else ()
     fields = tuple(dict.fromkeys(v.field for v in variants)) or _as_tuple(raw["fields"], "fields", source, str)
     for name in fields:

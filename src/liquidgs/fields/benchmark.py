@@ -23,6 +23,7 @@ import torch
 from liquidgs.errors import ConfigError
 from liquidgs.fields.build import build_field
 from liquidgs.fields.config import FIELD_NAMES, PRESET_NAMES, FieldConfig
+from liquidgs.settings import ArgumentParser
 
 # Variants of the 'sde' field beyond the paper, benchmarked with --variants.
 VARIANTS: dict[str, dict] = {
@@ -37,7 +38,7 @@ def _csv(kind: Callable[[str], object]) -> Callable[[str], list]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="liquidgs bench fields", description=__doc__.splitlines()[0])
+    parser = ArgumentParser(prog="liquidgs bench fields", description=__doc__.splitlines()[0])
     parser.add_argument("--json", action="store_true", help="one JSON object per line (default: a table)")
     parser.add_argument("--device", default="auto", help="cpu, cuda, cuda:N or auto (cuda when available)")
     parser.add_argument("--sizes", type=_csv(int), default=[20_000, 100_000], help="numbers of Gaussians")

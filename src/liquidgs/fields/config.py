@@ -14,14 +14,30 @@ from typing import Literal
 
 from liquidgs.errors import ConfigError
 
-FIELD_NAMES = ("static", "mlp", "cfc", "sde")
+FIELD_LABELS = {"static": "Static", "mlp": "D-3DGS (MLP)", "cfc": "Liquid CfC", "sde": "SDE-LNN"}
+"""Every field, in the order tables list them, with the name tables and figures show."""
+FIELD_NAMES = tuple(FIELD_LABELS)
+FieldName = Literal[FIELD_NAMES]  # type: ignore[valid-type]
 PRESET_NAMES = ("dnerf", "nerfds", "tiny")
+"""The presets: sizes here, and the training schedules of train/config.py, share these names."""
+PresetName = Literal[PRESET_NAMES]  # type: ignore[valid-type]
 ACTIVATIONS = ("silu", "relu", "tanh", "gelu", "lecun_tanh")
 NOISE_SITES = ("gate", "ou", "solver")
 SCHEDULES = ("constant", "linear", "cosine")
 
-DEFAULT_SDE_LAMBDA = 0.05
-"""The paper's calibrated gate-noise level, used when an 'sde' config leaves lambda_ unset."""
+PAPER_LAMBDA = 0.05
+"""The paper's calibrated gate-noise level, used when an 'sde' config leaves lambda unset."""
+
+
+def default_lambda(name: str) -> float:
+    """The noise level of a field whose lambda is not given: the paper's for 'sde', else 0."""
+    return PAPER_LAMBDA if name == "sde" else 0.0
+
+
+def check_choice(kind: str, value: str, choices: tuple[str, ...]) -> None:
+    if value not in choices:
+        raise ConfigError(f"unknown {kind} '{value}' (choose from {', '.join(choices)})")
+
 
 # Sizes per preset and family. dnerf/nerfds MLP: the public D-3DGS code. dnerf/nerfds liquid:
 # a reconstruction (the paper does not publish every size) that reproduces its cost table
@@ -113,14 +129,14 @@ class FieldOptions:
     hidden: int | None = None
     backbone_units: int | None = None
     backbone_layers: int | None = None
-    activation: Literal["silu", "relu", "tanh", "gelu", "lecun_tanh"] | None = None
+    activation: Literal[ACTIVATIONS] | None = None  # type: ignore[valid-type]
     backbone_dropout: float = 0.0
 
     # Noise variants of the 'sde' field (beyond the paper).
-    noise: Literal["gate", "ou", "solver"] = "gate"
+    noise: Literal[NOISE_SITES] = "gate"  # type: ignore[valid-type]
     """Where the noise enters: the time gate (paper), an exact Ornstein-Uhlenbeck hidden-state
     transition, or the same hidden-state SDE integrated by torchsde (Euler-Maruyama)."""
-    lambda_schedule: Literal["constant", "linear", "cosine"] = "constant"
+    lambda_schedule: Literal[SCHEDULES] = "constant"  # type: ignore[valid-type]
     lambda_decay_steps: int = 0
     """Training step at which a linear / cosine schedule has brought lambda to 0."""
     adaptive_lambda: bool = False
@@ -137,8 +153,8 @@ class FieldOptions:
 class FieldConfig(FieldOptions):
     """Settings of one deformation field, validated when built."""
 
-    name: Literal["static", "mlp", "cfc", "sde"] = "cfc"
-    preset: Literal["dnerf", "nerfds", "tiny"] = "dnerf"
+    name: FieldName = "cfc"
+    preset: PresetName = "dnerf"
     lambda_: float | None = None
     """Noise level of the 'sde' field (None: 0.05, the paper's value); must be 0 for the others."""
 
@@ -152,17 +168,15 @@ class FieldConfig(FieldOptions):
     @property
     def base_lambda(self) -> float:
         """The base noise level lambda after defaulting."""
-        if self.lambda_ is not None:
-            return float(self.lambda_)
-        return DEFAULT_SDE_LAMBDA if self.name == "sde" else 0.0
+        return default_lambda(self.name) if self.lambda_ is None else float(self.lambda_)
 
     def resolved(self) -> FieldConfig:
         """A copy with every size of this field's family, and lambda_, filled in."""
         return dataclasses.replace(self, **self._resolved_values(), lambda_=self.base_lambda)
 
     def _resolved_values(self) -> dict:
-        _check_choice("field", self.name, FIELD_NAMES)
-        _check_choice("preset", self.preset, PRESET_NAMES)
+        check_choice("field", self.name, FIELD_NAMES)
+        check_choice("preset", self.preset, PRESET_NAMES)
         fam = family(self.name)
         defaults = PRESETS[self.preset].get(fam, {})
         return {key: defaults[key] if getattr(self, key) is None else getattr(self, key) for key in _FAMILY_SIZES[fam]}
@@ -186,9 +200,9 @@ class FieldConfig(FieldOptions):
         for key in ("mlp_depth", "mlp_width", "cells", "hidden", "backbone_units", "backbone_layers"):
             if key in values and values[key] < 1:
                 raise ConfigError(f"field: {key} must be >= 1, got {values[key]}")
-        _check_choice("activation", values.get("activation", "gelu"), ACTIVATIONS)
-        _check_choice("noise site", self.noise, NOISE_SITES)
-        _check_choice("lambda schedule", self.lambda_schedule, SCHEDULES)
+        check_choice("activation", values.get("activation", "gelu"), ACTIVATIONS)
+        check_choice("noise site", self.noise, NOISE_SITES)
+        check_choice("lambda schedule", self.lambda_schedule, SCHEDULES)
         if not 0.0 <= self.backbone_dropout < 1.0:
             raise ConfigError(f"field: backbone_dropout must be in [0, 1), got {self.backbone_dropout}")
         if self.lambda_schedule != "constant" and self.lambda_decay_steps < 1:
@@ -203,8 +217,3 @@ class FieldConfig(FieldOptions):
             raise ConfigError(f"field: ltc_leak must be a finite number >= 0, got {self.ltc_leak}")
         if self.ltc_leak > 0 and self.noise == "gate":
             raise ConfigError("field: ltc_leak applies to the hidden-state noise sites ('ou', 'solver') only")
-
-
-def _check_choice(kind: str, value: str, choices: tuple[str, ...]) -> None:
-    if value not in choices:
-        raise ConfigError(f"unknown {kind} '{value}' (choose from {', '.join(choices)})")

@@ -32,6 +32,7 @@ from liquidgs.render.rasterize import (
     view_colors,
 )
 from liquidgs.render.reference import composite_dense
+from liquidgs.settings import ArgumentParser
 
 DEFAULT_CASES = "64x64/5000,200x200/20000,800x800/100000"
 DNERF_CAMERA_ANGLE_X = 0.6911112070083618
@@ -164,7 +165,7 @@ def machine_description(device: torch.device) -> str:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="liquidgs bench raster", description=__doc__.splitlines()[0])
+    parser = ArgumentParser(prog="liquidgs bench raster", description=__doc__.splitlines()[0])
     parser.add_argument("--json", action="store_true", help="print one JSON object per case (default: text)")
     parser.add_argument("--backend", default="auto", choices=BACKENDS)
     parser.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")

@@ -23,8 +23,10 @@ import torch
 
 from liquidgs.data import DataConfig, load_dataset
 from liquidgs.errors import ConfigError
+from liquidgs.fields.config import FIELD_NAMES, PRESET_NAMES
 from liquidgs.render.benchmark import machine_description
-from liquidgs.train.config import FIELDS, PRESETS, preset_config, validate
+from liquidgs.settings import ArgumentParser, with_settings
+from liquidgs.train.config import preset_config
 from liquidgs.train.trainer import Trainer
 
 DEFAULT_OUTPUT = Path("benchmarks/gpu.jsonl")
@@ -32,11 +34,11 @@ MIN_BUDGET_S = 10.0
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="liquidgs bench gpu", description=__doc__.splitlines()[0])
+    parser = ArgumentParser(prog="liquidgs bench gpu", description=__doc__.splitlines()[0])
     parser.add_argument("--data", type=Path, required=True, help="scene folder (e.g. a D-NeRF scene at 800x800)")
     parser.add_argument("--budget-s", type=float, default=420.0, help="seconds of training (default 420)")
-    parser.add_argument("--preset", default="dnerf", choices=PRESETS)
-    parser.add_argument("--field", default="mlp", choices=FIELDS)
+    parser.add_argument("--preset", default="dnerf", choices=PRESET_NAMES)
+    parser.add_argument("--field", default="mlp", choices=FIELD_NAMES)
     parser.add_argument("--downscale", type=int, default=1, help="image downscale (default 1: full resolution)")
     parser.add_argument("--fps-frames", type=int, default=50, help="frames timed for the render FPS (default 50)")
     parser.add_argument("--seed", type=int, default=0)
@@ -52,13 +54,12 @@ def run_config(args: argparse.Namespace):
         raise ConfigError(f"--budget-s must be at least {MIN_BUDGET_S:g} seconds, got {args.budget_s}")
     if args.fps_frames < 1:
         raise ConfigError(f"--fps-frames must be >= 1, got {args.fps_frames}")
-    cfg = preset_config(args.preset, args.data)
-    cfg.field, cfg.seed, cfg.downscale = args.field, args.seed, args.downscale
-    cfg.device, cfg.backend = "cuda", "gsplat"
-    cfg.eval.start = cfg.iterations + 1  # evaluated once, when the budget is spent
-    cfg.eval.fps_frames = args.fps_frames
-    validate(cfg)
-    return cfg
+    cfg = preset_config(args.preset, DataConfig(path=args.data, downscale=args.downscale))
+    return with_settings(cfg, {
+        "field": args.field, "seed": args.seed, "device": "cuda", "backend": "gsplat",
+        "eval.start": cfg.iterations + 1,  # evaluated once, when the budget is spent
+        "eval.fps_frames": args.fps_frames,
+    }, "bench gpu")  # fmt: skip
 
 
 def plan_lines(args: argparse.Namespace, cfg, resolution: tuple[int, int], test_views: int) -> list[str]:

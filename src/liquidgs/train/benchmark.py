@@ -19,24 +19,27 @@ from pathlib import Path
 
 import torch
 
-from liquidgs.data import DEFAULT_SYNTHETIC_SCENE, generate_synthetic
+from liquidgs.data import DEFAULT_SYNTHETIC_SCENE, DataConfig, generate_synthetic
 from liquidgs.errors import ConfigError
+from liquidgs.fields.config import FIELD_NAMES, PRESET_NAMES
+from liquidgs.render import BACKENDS
 from liquidgs.render.benchmark import machine_description
-from liquidgs.train.config import FIELDS, PRESETS, preset_config, validate
+from liquidgs.settings import ArgumentParser, with_settings
+from liquidgs.train.config import preset_config
 from liquidgs.train.model import deform
 from liquidgs.train.phases import PHASES, PhaseClock
 from liquidgs.train.trainer import Trainer
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="liquidgs bench train", description=__doc__.splitlines()[0])
+    parser = ArgumentParser(prog="liquidgs bench train", description=__doc__.splitlines()[0])
     parser.add_argument("--json", action="store_true", help="print one JSON object (default: a table)")
     parser.add_argument("--data", type=Path, help=f"scene folder (default: the built-in {DEFAULT_SYNTHETIC_SCENE})")
     parser.add_argument("--size", type=int, default=128, help="built-in scene's image size")
     parser.add_argument("--downscale", type=int, help="image downscale of --data")
-    parser.add_argument("--preset", default="tiny", choices=PRESETS)
-    parser.add_argument("--field", default="mlp", choices=FIELDS)
-    parser.add_argument("--backend", default="auto", choices=("auto", "torch", "cpu", "gsplat"))
+    parser.add_argument("--preset", default="tiny", choices=PRESET_NAMES)
+    parser.add_argument("--field", default="mlp", choices=FIELD_NAMES)
+    parser.add_argument("--backend", default="auto", choices=BACKENDS)
     parser.add_argument("--device", default="auto")
     parser.add_argument("--from-step", type=int, default=700, help="untimed steps first (default 700)")
     parser.add_argument("--steps", type=int, default=300, help="timed steps (default 300)")
@@ -72,15 +75,11 @@ def run(args: argparse.Namespace) -> int:
 
 
 def measure(args: argparse.Namespace, data: Path, run_dir: Path) -> dict:
-    cfg = preset_config(args.preset, data)
-    cfg.field = args.field
-    cfg.seed = args.seed
-    cfg.device = args.device
-    cfg.backend = args.backend
-    cfg.downscale = args.downscale
-    cfg.iterations = args.from_step + args.steps
-    cfg.eval.start = cfg.iterations + 1  # no evaluation inside the timed steps
-    validate(cfg)
+    iterations = args.from_step + args.steps
+    cfg = with_settings(preset_config(args.preset, DataConfig(path=data, downscale=args.downscale)), {
+        "field": args.field, "seed": args.seed, "device": args.device, "backend": args.backend,
+        "iterations": iterations, "eval.start": iterations + 1,  # no evaluation inside the timed steps
+    }, "bench train")  # fmt: skip
     run_dir.mkdir(parents=True)
     trainer = Trainer(cfg, run_dir)
     for step in range(1, args.from_step + 1):

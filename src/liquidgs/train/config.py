@@ -6,8 +6,6 @@ import dataclasses
 import hashlib
 import json
 import math
-import types
-import typing
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Literal
@@ -15,15 +13,16 @@ from typing import Annotated, Literal
 import tyro
 import yaml
 
+from liquidgs import settings
 from liquidgs.atomic import write_text_atomic
 from liquidgs.data.perturb import PerturbConfig
+from liquidgs.data.scene import DataConfig
 from liquidgs.errors import ConfigError
 from liquidgs.fields import FieldConfig, FieldOptions
-from liquidgs.fields.config import DEFAULT_SDE_LAMBDA
+from liquidgs.fields.config import PRESET_NAMES, FieldName, PresetName, check_choice
+from liquidgs.render import BACKENDS
+from liquidgs.settings import to_dict, with_settings
 from liquidgs.train.strategy import DensifyConfig
-
-PRESETS = ("dnerf", "nerfds", "tiny")
-FIELDS = ("static", "mlp", "cfc", "sde")
 
 
 @dataclass
@@ -65,27 +64,20 @@ class EvalConfig:
 
 @dataclass
 class TrainConfig:
-    data: Path
-    """Dataset folder (D-NeRF or Nerfies/NeRF-DS layout)."""
-    field: Literal["static", "mlp", "cfc", "sde"] = "mlp"
+    data: Annotated[DataConfig, tyro.conf.OmitArgPrefixes]
+    """The scene and how to read it (--data PATH, --downscale, --background, ...)."""
+    field: FieldName = "mlp"
     """Deformation field; 'static' = no deformation, the floor every field must beat."""
-    preset: Literal["dnerf", "nerfds", "tiny"] = "dnerf"
+    preset: PresetName = "dnerf"
     lambda_: Annotated[float | None, tyro.conf.arg(name="lambda")] = None
     """Gate-noise level of the 'sde' field (default 0.05, the paper's calibrated value)."""
     iterations: int = 40_000
-    downscale: int | None = None
-    """Image downscale factor (default: 1 for D-NeRF, the split preset's for Nerfies)."""
     seed: int = 0
     out: Path | None = None
     """Run folder (default outputs/<scene>/<field>/<config hash>)."""
     resume: bool = False
     device: str = "auto"
-    backend: Literal["auto", "torch", "gsplat"] = "auto"
-    background: Literal["black", "white"] = "black"
-    data_format: Literal["auto", "dnerf", "nerfies"] = "auto"
-    split: Literal["auto", "nerfds", "vrig", "interp"] = "auto"
-    """Nerfies split preset: nerfds | vrig | interp (auto = nerfds)."""
-    val_as_test: bool = False
+    backend: Literal[BACKENDS] = "auto"  # type: ignore[valid-type]
     warmup: int = 3000
     """Iterations with the deltas forced to zero (static 3DGS)."""
     sh_degree: int = 3
@@ -111,41 +103,57 @@ class TrainConfig:
     densify: DensifyConfig = dataclasses.field(default_factory=DensifyConfig)
     eval: EvalConfig = dataclasses.field(default_factory=EvalConfig)
 
+    def __post_init__(self) -> None:
+        validate(self)
+
     def field_config(self) -> FieldConfig:
-        return FieldConfig.of(self.field_options, self.field, self.preset, self.resolved_lambda())
+        """The field's own configuration (validated by the field's rules)."""
+        return FieldConfig.of(self.field_options, self.field, self.preset, self.lambda_)
 
     def resolved_lambda(self) -> float:
-        if self.lambda_ is None:
-            return DEFAULT_SDE_LAMBDA if self.field == "sde" else 0.0
-        return self.lambda_
+        return self.field_config().base_lambda
 
 
-def preset_config(name: str, data: Path) -> TrainConfig:
-    """Defaults of a preset. dnerf/nerfds follow the current public D-3DGS code."""
-    if name not in PRESETS:
-        raise ConfigError(f"unknown preset '{name}' (choose from {', '.join(PRESETS)})")
-    cfg = TrainConfig(data=data, preset=name)  # type: ignore[arg-type]
-    if name == "nerfds":
-        cfg.iterations = 20_000
-        cfg.smooth_time = True
-    elif name == "tiny":
-        # A short CPU schedule for the built-in 128 px synthetic scenes: the D-3DGS recipe
-        # with every step count scaled down, fewer initial points, and alex LPIPS.
-        cfg.iterations = 1500
-        cfg.warmup = 100
-        cfg.sh_interval = 300
-        cfg.init_points = 5000
-        cfg.checkpoint_every = 500
-        # A short warm-up and a field learning rate that stays high (5e-3 -> 5e-4): measured on
-        # the built-in puppet scene, warm-up 300 with 2e-3 -> 2e-5 left the field nearly static.
-        cfg.optim = OptimConfig(means_lr_steps=1500, field_lr_init=5e-3, field_lr_final=5e-4, field_lr_steps=1500)
-        cfg.densify = DensifyConfig(start=100, stop=1100, interval=50, opacity_reset_interval=600)
-        cfg.eval = EvalConfig(start=500, every=500, lpips_backbone="alex")
-    return cfg
+# Each preset's training schedule, as the settings it changes from TrainConfig's defaults (which are
+# the dnerf preset: the current public D-3DGS code). The field sizes of a preset are fields/config.py's.
+PRESET_SETTINGS: dict[str, dict] = {
+    "dnerf": {},
+    "nerfds": {"iterations": 20_000, "smooth_time": True},
+    # A short CPU schedule for the built-in 128 px synthetic scenes: the D-3DGS recipe with every
+    # step count scaled down, fewer initial points, and alex LPIPS. A short warm-up and a field
+    # learning rate that stays high (5e-3 -> 5e-4): measured on the built-in puppet scene, warm-up
+    # 300 with 2e-3 -> 2e-5 left the field nearly static.
+    "tiny": {
+        "iterations": 1500,
+        "warmup": 100,
+        "sh_interval": 300,
+        "init_points": 5000,
+        "checkpoint_every": 500,
+        "optim.means_lr_steps": 1500,
+        "optim.field_lr_init": 5e-3,
+        "optim.field_lr_final": 5e-4,
+        "optim.field_lr_steps": 1500,
+        "densify.start": 100,
+        "densify.stop": 1100,
+        "densify.interval": 50,
+        "densify.opacity_reset_interval": 600,
+        "eval.start": 500,
+        "eval.every": 500,
+        "eval.lpips_backbone": "alex",
+    },
+}
+assert tuple(PRESET_SETTINGS) == PRESET_NAMES
 
 
-def stretched_schedule(preset: str, iterations: int) -> list[str]:
-    """`liquidgs train` flags that fit a preset's schedule to `iterations`: learning rates
+def preset_config(name: str, data: Path | DataConfig) -> TrainConfig:
+    """Defaults of a preset for a scene (a path, or a DataConfig with its reading options)."""
+    check_choice("preset", name, PRESET_NAMES)
+    data = data if isinstance(data, DataConfig) else DataConfig(path=Path(data))
+    return with_settings(TrainConfig(data=data, preset=name), PRESET_SETTINGS[name], f"preset {name}")
+
+
+def stretched_schedule(preset: str, iterations: int) -> dict:
+    """The settings that fit a preset's schedule to `iterations`: learning rates
     decay over all of them, densification runs until 3/4 of them with an opacity reset every
     2/5, and the one evaluation is at the end.
 
@@ -155,14 +163,14 @@ def stretched_schedule(preset: str, iterations: int) -> list[str]:
     """
     start = preset_config(preset, Path(".")).densify.start
     n = iterations
-    return [
-        "--iterations", str(n),
-        "--optim.means-lr-steps", str(n),
-        "--optim.field-lr-steps", str(n),
-        "--densify.stop", str(max(start + 1, 3 * n // 4)),
-        "--densify.opacity-reset-interval", str(max(1, 2 * n // 5)),
-        "--eval.start", str(n),
-    ]  # fmt: skip
+    return {
+        "iterations": n,
+        "optim.means_lr_steps": n,
+        "optim.field_lr_steps": n,
+        "densify.stop": max(start + 1, 3 * n // 4),
+        "densify.opacity_reset_interval": max(1, 2 * n // 5),
+        "eval.start": n,
+    }
 
 
 MAX_ITERATIONS = 10_000_000
@@ -240,9 +248,9 @@ def _setting(cfg: TrainConfig, dotted: str):
 
 
 def validate(cfg: TrainConfig) -> None:
-    """Every setting in range, so a run never fails mid-way on a value it could have refused."""
-    if cfg.field not in FIELDS:
-        raise ConfigError(f"unknown field '{cfg.field}' (choose from {', '.join(FIELDS)})")
+    """Every setting in range, so a run never fails mid-way on a value it could have refused.
+    TrainConfig runs it when built; the field's, the data's and the perturbations' own rules run
+    when their configs are built."""
     for name, (lo, hi) in _INT_RANGES.items():
         value = _setting(cfg, name)
         if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
@@ -253,59 +261,87 @@ def validate(cfg: TrainConfig) -> None:
         is_number = isinstance(value, (int, float)) and not isinstance(value, bool)
         if not (is_number and math.isfinite(value) and rule(value)):
             raise ConfigError(f"{name.replace('_', '-')} must be a finite number {_RULE_TEXT[rule]}, got {value!r}")
-    if cfg.lambda_ is not None and not (math.isfinite(cfg.lambda_) and cfg.lambda_ >= 0):
-        raise ConfigError(f"lambda must be a finite number >= 0, got {cfg.lambda_}")
-    if cfg.field == "cfc" and cfg.resolved_lambda() != 0.0:
-        raise ConfigError("the 'cfc' field is the deterministic cell (lambda = 0); use --field sde for noise")
     if not all(type(step) is int and 1 <= step <= _INT64_MAX for step in cfg.eval.also):
         raise ConfigError(f"eval.also must hold iterations >= 1, got {list(cfg.eval.also)}")
-    if cfg.downscale is not None and cfg.downscale < 1:
-        raise ConfigError(f"downscale must be >= 1, got {cfg.downscale}")
     cfg.field_config()  # the field's own rules, now that its name, preset and lambda are known
-    cfg.perturb.validate()
-
-
-def to_dict(cfg: TrainConfig) -> dict:
-    def convert(value):
-        if isinstance(value, Path):
-            return str(value)
-        if isinstance(value, dict):
-            return {k: convert(v) for k, v in value.items()}
-        if isinstance(value, (list, tuple)):
-            return [convert(v) for v in value]
-        return value
-
-    return convert(dataclasses.asdict(cfg))
 
 
 # Settings that change where or how a run executes, not what it computes.
-_NOT_IDENTITY = ("out", "resume", "device", "backend", "checkpoint_every")
+_NOT_IDENTITY = ("out", "resume", "device", "backend", "checkpoint_every", "data.cache_images")
 
-
-# Before field_options lost them, it held a placeholder name, preset and lambda that never took
-# effect; config hashes (and so run folder names) were computed with them and must not change.
-_LEGACY_FIELD_OPTIONS = {"name": "mlp", "preset": "dnerf", "lambda_": None}
+IDENTITY_VERSION = 2
+"""Version 2 (this code): every setting that changes what a run computes, as config.yml holds
+it, with the scene path resolved and "identity": 2. Version 1 (before the data settings were
+grouped under `data`) is legacy_identity's; run folders named by it are still found."""
 
 
 def identity(cfg: TrainConfig) -> dict:
-    """What a run computes from. An unperturbed run has no 'perturb' key, so it hashes as it
-    did before perturbations existed."""
+    """What a run computes from. A setting added later must not change the identity of runs made
+    without it: leave it out at the value those runs had (and test that)."""
     d = to_dict(cfg)
-    for key in _NOT_IDENTITY:
-        d.pop(key, None)
-    d["data"] = str(Path(d["data"]).resolve())
-    d["field_options"] = {**_LEGACY_FIELD_OPTIONS, **d["field_options"]}
-    if not cfg.perturb.active:
-        del d["perturb"]
-    if not cfg.eval.also:  # runs without extra evaluations hash as they did before the setting existed
-        del d["eval"]["also"]
-    if not cfg.densify.max_per_pixel:  # uncapped runs hash as they did before the cap existed
-        del d["densify"]["max_per_pixel"]
+    for dotted in _NOT_IDENTITY:
+        *groups, last = dotted.split(".")
+        node = d
+        for part in groups:
+            node = node[part]
+        del node[last]
+    d["data"]["path"] = str(Path(d["data"]["path"]).resolve())
+    d["identity"] = IDENTITY_VERSION
     return d
 
 
 def config_hash(cfg: TrainConfig) -> str:
-    return hashlib.sha256(json.dumps(identity(cfg), sort_keys=True).encode()).hexdigest()[:10]
+    return _hash(identity(cfg))
+
+
+def _hash(d: dict) -> str:
+    return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()[:10]
+
+
+# Version 1 kept the data settings at the top level (data_format for data.format), a placeholder
+# name, preset and lambda in field_options that never took effect, and left out three settings
+# at the values of runs made before they existed.
+_V1_DATA_KEYS = {"path": "data", "format": "data_format", "downscale": "downscale", "background": "background",
+                 "split": "split", "val_as_test": "val_as_test"}  # fmt: skip
+_V1_FIELD_OPTIONS = {"name": "mlp", "preset": "dnerf", "lambda_": None}
+
+
+def legacy_identity(cfg: TrainConfig) -> dict:
+    """The version-1 identity, whose hash named the run folders of liquidgs before version 2."""
+    d = identity(cfg)
+    del d["identity"]
+    data = d.pop("data")
+    d.update({v1: data[key] for key, v1 in _V1_DATA_KEYS.items()})
+    d["field_options"] = {**_V1_FIELD_OPTIONS, **d["field_options"]}
+    if not cfg.perturb.active:
+        del d["perturb"]
+    if not cfg.eval.also:
+        del d["eval"]["also"]
+    if not cfg.densify.max_per_pixel:
+        del d["densify"]["max_per_pixel"]
+    return d
+
+
+def legacy_config_hash(cfg: TrainConfig) -> str:
+    return _hash(legacy_identity(cfg))
+
+
+def upgrade_v1(raw: dict) -> dict:
+    """A version-1 config.yml (data settings at the top level) in the current shape."""
+    raw = dict(raw)
+    data = {key: raw.pop(v1) for key, v1 in _V1_DATA_KEYS.items() if v1 in raw}
+    raw["data"] = data
+    if isinstance(raw.get("field_options"), dict):
+        raw["field_options"] = {k: v for k, v in raw["field_options"].items() if k not in _V1_FIELD_OPTIONS}
+    return raw
+
+
+def run_folder(cfg: TrainConfig, parent: Path) -> Path:
+    """The folder under `parent` for this run: named by its config hash, or by its version-1 hash
+    where a run made before version 2 is there."""
+    current = Path(parent) / config_hash(cfg)
+    legacy = Path(parent) / legacy_config_hash(cfg)
+    return legacy if not current.exists() and legacy.exists() else current
 
 
 def save_yaml(cfg: TrainConfig, path: Path) -> None:
@@ -322,62 +358,8 @@ def load_yaml(path: Path) -> TrainConfig:
     return from_dict(raw, path)
 
 
-def _describe(hint) -> str:
-    if typing.get_origin(hint) is Literal:
-        return "one of " + ", ".join(map(str, typing.get_args(hint)))
-    if typing.get_origin(hint) in (typing.Union, types.UnionType):
-        return " or ".join(_describe(arg) for arg in typing.get_args(hint))
-    return {int: "an integer", float: "a number", bool: "true or false", str: "a string", Path: "a path",
-            type(None): "null"}.get(hint, str(hint))  # fmt: skip
-
-
-def _matches(value, hint) -> bool:
-    """Whether a YAML value fits a setting's type (the types TrainConfig and its parts use)."""
-    origin = typing.get_origin(hint)
-    if origin is Literal:
-        return any(value == choice and type(value) is type(choice) for choice in typing.get_args(hint))
-    if origin in (typing.Union, types.UnionType):
-        return any(_matches(value, arg) for arg in typing.get_args(hint))
-    if hint is type(None):
-        return value is None
-    if hint is float:
-        return isinstance(value, (int, float)) and not isinstance(value, bool)
-    if hint in (int, bool, str):
-        return type(value) is hint
-    if hint is Path:
-        return isinstance(value, str)
-    if typing.get_origin(hint) is tuple:
-        return isinstance(value, list) and all(_matches(item, typing.get_args(hint)[0]) for item in value)
-    return True
-
-
 def from_dict(raw: dict, source: Path | str = "config") -> TrainConfig:
-    """A TrainConfig from YAML; a setting of the wrong type is one error naming it."""
-
-    def build(cls, values: dict, prefix: str):
-        if not isinstance(values, dict):
-            raise ConfigError(f"{source}: setting '{prefix.rstrip('.')}' must be a mapping, got {values!r}")
-        kwargs = {}
-        fields = {f.name: f for f in dataclasses.fields(cls)}
-        hints = typing.get_type_hints(cls)
-        for key, value in values.items():
-            if key not in fields:
-                raise ConfigError(f"{source}: unknown setting '{prefix}{key}' for {cls.__name__}")
-            factory = fields[key].default_factory
-            if callable(factory) and dataclasses.is_dataclass(factory()):
-                kwargs[key] = build(type(factory()), value, f"{prefix}{key}.")
-                continue
-            if not _matches(value, hints[key]):
-                raise ConfigError(
-                    f"{source}: setting '{prefix}{key}' must be {_describe(hints[key])}, got {value!r}"[:300]
-                )
-            is_path = Path in (hints[key], *typing.get_args(hints[key]))
-            if typing.get_origin(hints[key]) is tuple:  # YAML holds lists
-                value = tuple(value)
-            kwargs[key] = Path(value) if is_path and value is not None else value
-        return cls(**kwargs)
-
-    raw = dict(raw)
-    if isinstance(raw.get("field_options"), dict):  # config.yml of an older version: drop the placeholders
-        raw["field_options"] = {k: v for k, v in raw["field_options"].items() if k not in _LEGACY_FIELD_OPTIONS}
-    return build(TrainConfig, raw, "")
+    """A TrainConfig from YAML (either version); a setting of the wrong type is one error naming it."""
+    if not isinstance(raw.get("data"), dict):
+        raw = upgrade_v1(raw)
+    return settings.from_dict(TrainConfig, raw, source)

@@ -19,7 +19,7 @@ import numpy as np
 import torch
 
 from liquidgs.atomic import temporaries_of, write_atomic, write_json_atomic
-from liquidgs.data import DataConfig, SceneDataset, load_dataset, perturb_dataset, spread_extent
+from liquidgs.data import SceneDataset, load_dataset, perturb_dataset, spread_extent
 from liquidgs.data.scene import MIN_CAMERA_EXTENT
 from liquidgs.errors import ConfigError, LiquidGSError
 from liquidgs.eval import LPIPS, LPIPSUnavailable, evaluate_views, ssim
@@ -66,21 +66,10 @@ def resolve_device(name: str) -> torch.device:
     return device
 
 
-def data_config(cfg: TrainConfig) -> DataConfig:
-    return DataConfig(
-        path=cfg.data,
-        format=cfg.data_format,
-        downscale=cfg.downscale,
-        background=cfg.background,
-        split=cfg.split,
-        val_as_test=cfg.val_as_test,
-    )
-
-
 def load_run_dataset(cfg: TrainConfig, clean: SceneDataset | None = None) -> SceneDataset:
     """The scene as this run sees it: `clean` (else read from cfg.data) with cfg.perturb applied,
     so training, evaluation and renders of a perturbed run use the same splits."""
-    return perturb_dataset(clean if clean is not None else load_dataset(data_config(cfg)), cfg.perturb, cfg.seed)
+    return perturb_dataset(clean if clean is not None else load_dataset(cfg.data), cfg.perturb, cfg.seed)
 
 
 def make_lpips(cfg: TrainConfig, device: torch.device) -> tuple[LPIPS | None, str | None]:
@@ -126,7 +115,7 @@ class Trainer:
             raise ConfigError("--backend gsplat needs a CUDA device (gsplat has no CPU path); use auto or torch")
         self.dataset = load_run_dataset(cfg, dataset)  # `dataset`, when given, is the clean scene
         if not self.dataset.train:
-            raise LiquidGSError(f"{cfg.data}: the training split is empty")
+            raise LiquidGSError(f"{cfg.data.path}: the training split is empty")
         self.background = torch.tensor(self.dataset.background, dtype=torch.float32, device=self.device)
         torch.manual_seed(cfg.seed)
         self.camera_rng = np.random.default_rng(cfg.seed)
@@ -167,7 +156,7 @@ class Trainer:
         fallback = spread_extent(self.params["means"].detach())
         if fallback < MIN_CAMERA_EXTENT:
             raise LiquidGSError(
-                f"{self.cfg.data}: the train cameras and the initial points each sit at one position; "
+                f"{self.cfg.data.path}: the train cameras and the initial points each sit at one position; "
                 "there is no scene extent to densify by"
             )
         self.notes.append(
@@ -456,7 +445,7 @@ class Trainer:
             peak_mb, peak_kind = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, "process_peak_rss"
         results = {
             "scene": self.dataset.scene_name,
-            "data": str(cfg.data),
+            "data": str(cfg.data.path),
             "field": cfg.field,
             "preset": cfg.preset,
             "lambda": cfg.resolved_lambda(),

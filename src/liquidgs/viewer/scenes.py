@@ -105,10 +105,10 @@ def load_runs(run_dirs: list[Path], device: str = "auto") -> list[RunScene]:
             raise LiquidGSError(f"{run_dir}: not a finished liquidgs run ({run.progress_label})")
         label = f"{len(scenes) + 1}: {run.config.field} ({run_dir.name})"
         scene = RunScene(run, label)
-        if scenes and scene.run.config.data != scenes[0].run.config.data:
+        if scenes and scene.run.config.data.path != scenes[0].run.config.data.path:
             raise LiquidGSError(
-                f"{run_dir}: trained on {scene.run.config.data}, but {run_dirs[0]} on "
-                f"{scenes[0].run.config.data}; the viewer compares runs of one scene"
+                f"{run_dir}: trained on {scene.run.config.data.path}, but {run_dirs[0]} on "
+                f"{scenes[0].run.config.data.path}; the viewer compares runs of one scene"
             )
         scenes.append(scene)
     return scenes

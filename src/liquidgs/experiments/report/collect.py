@@ -15,13 +15,13 @@ from pathlib import Path
 
 from liquidgs.errors import LiquidGSError
 from liquidgs.experiments.plan import Experiment, RunEntry, read_manifest
-from liquidgs.train.config import FIELDS, TrainConfig, load_yaml
+from liquidgs.fields.config import FIELD_LABELS, FIELD_NAMES
+from liquidgs.train.config import TrainConfig, load_yaml
 from liquidgs.train.trainer import CONFIG, PER_VIEW, RESULTS
 
 EVALUATIONS = ("final", "best_of")
 SCORE_KEYS = ("psnr", "ssim")
 COST_KEYS = ("fps", "num_gaussians", "field_parameters", "field_flops_per_gaussian", "train_seconds", "peak_memory_mb")
-FIELD_LABELS = {"static": "Static", "mlp": "D-3DGS (MLP)", "cfc": "Liquid CfC", "sde": "SDE-LNN"}
 
 
 @dataclass(frozen=True, order=True)
@@ -33,11 +33,11 @@ class Method:
 
     @classmethod
     def of(cls, field: str, lambda_: float) -> Method:
-        return cls(FIELDS.index(field), lambda_ if field == "sde" else 0.0)
+        return cls(FIELD_NAMES.index(field), lambda_ if field == "sde" else 0.0)
 
     @property
     def field(self) -> str:
-        return FIELDS[self.field_rank]
+        return FIELD_NAMES[self.field_rank]
 
     @property
     def label(self) -> str:

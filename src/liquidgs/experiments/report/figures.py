@@ -12,7 +12,7 @@ from liquidgs.atomic import write_atomic
 from liquidgs.errors import LiquidGSError
 from liquidgs.experiments.report.aggregate import DatasetScores
 from liquidgs.experiments.report.collect import Method, RunRecord
-from liquidgs.experiments.spec import PAPER_LAMBDA
+from liquidgs.fields.config import PAPER_LAMBDA
 from liquidgs.media import labelled, to_uint8, write_png
 from liquidgs.train.run import load_run
 from liquidgs.train.trainer import load_run_dataset
@@ -144,7 +144,7 @@ def _scene_row(scene: str, gain: float, seed: int, mlp: RunRecord, sde: RunRecor
     dataset = load_run_dataset(sde.config)
     frame = next((f for f in dataset.test if f.name == view), None)
     if frame is None:
-        raise LiquidGSError(f"test view '{view}' of per_view.json is not in {sde.config.data}")
+        raise LiquidGSError(f"test view '{view}' of per_view.json is not in {sde.config.data.path}")
     background = torch.tensor(dataset.background, dtype=torch.float32)
     truth = to_uint8(frame.image())
     renders = []

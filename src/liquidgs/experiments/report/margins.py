@@ -25,14 +25,15 @@ from liquidgs.data.regions import foreground_region, frame_step, moving_region
 from liquidgs.errors import LiquidGSError
 from liquidgs.eval.regions import region_psnr, region_share
 from liquidgs.experiments.report.aggregate import TIE_SIGMAS, Stat, stat
-from liquidgs.experiments.report.collect import FIELD_LABELS, Collection, RunRecord
+from liquidgs.experiments.report.collect import Collection, RunRecord
 from liquidgs.experiments.report.references import MEAN
 from liquidgs.experiments.report.stress import is_paper_run
 from liquidgs.experiments.report.tables import PlainTable
 from liquidgs.experiments.spec import SyntheticScene
+from liquidgs.fields.config import FIELD_LABELS
 from liquidgs.media import to_uint8
 from liquidgs.train.run import load_run
-from liquidgs.train.trainer import data_config, load_run_dataset
+from liquidgs.train.trainer import load_run_dataset
 
 BASELINE = "static"
 REGIONS = ("whole", "foreground", "moving")
@@ -123,7 +124,7 @@ def collect_scores(collection: Collection, device: str) -> tuple[list[RunScores]
         key = (run.entry.dataset, run.entry.scene)
         if key not in with_static:
             continue
-        data_key = (*key, repr(data_config(run.config)))
+        data_key = (*key, repr(run.config.data))
         if data_key not in regions:
             try:
                 regions[data_key] = scene_regions(run, names.get(key))

@@ -18,7 +18,7 @@ from functools import cache
 from importlib import resources
 
 from liquidgs.experiments.report.collect import Method
-from liquidgs.experiments.spec import PAPER_LAMBDA
+from liquidgs.fields.config import PAPER_LAMBDA
 
 METRIC_KEYS = ("psnr", "ssim", "lpips")
 MEAN = "mean"
