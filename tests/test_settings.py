@@ -121,3 +121,11 @@ def test_with_settings_checks_the_result_as_a_whole():
         with_settings(cfg, {"field": "cfc", "lambda_": 0.1})
     with pytest.raises(ConfigError, match="unknown setting 'eval'"):
         with_settings(cfg, {"eval": 3})
+
+
+def test_lists_and_fixed_length_tuples():
+    assert parse_flag_settings(ExportArgs, ["--time", "0.1", "0.5"], "export")["time"] == [0.1, 0.5]
+    view = parse_flag_settings(ViewArgs, ["--run", "a", "--background", "1", "0", "0.5", "--run", "b"], "view")
+    assert view == {"run": [Path("a"), Path("b")], "background": (1.0, 0.0, 0.5)}
+    with pytest.raises(ConfigError, match="argument --background: expected 3 arguments"):
+        parse_flag_settings(ViewArgs, ["--background", "1", "0"], "view")

@@ -64,6 +64,21 @@ def _is_union(hint) -> bool:
     return typing.get_origin(hint) in (typing.Union, types.UnionType)
 
 
+def _items(hint) -> tuple | None:
+    """The item types of a list / tuple setting (one type and Ellipsis for any length), else None."""
+    hint = _strip(hint)
+    origin = typing.get_origin(hint)
+    if origin is list:
+        return (typing.get_args(hint)[0], ...)
+    if origin is tuple:
+        return typing.get_args(hint)
+    return None
+
+
+def _item_types(items: tuple, count: int) -> list:
+    return [items[0]] * count if items[-1] is Ellipsis else list(items)
+
+
 def _nested(hint) -> type | None:
     """The dataclass a setting groups, if it is a group."""
     hint = _strip(hint)
@@ -77,8 +92,8 @@ def describe(hint) -> str:
         return "one of " + ", ".join(map(str, typing.get_args(hint)))
     if _is_union(hint):
         return " or ".join(describe(arg) for arg in typing.get_args(hint))
-    if typing.get_origin(hint) is tuple:
-        return "a list of " + describe(typing.get_args(hint)[0]).removeprefix("an ").removeprefix("a ") + "s"
+    if _items(hint) is not None:
+        return "a list of " + describe(_items(hint)[0]).removeprefix("an ").removeprefix("a ") + "s"
     return {int: "an integer", float: "a number", bool: "true or false", str: "a string", Path: "a path",
             type(None): "null"}.get(hint, str(hint))  # fmt: skip
 
@@ -99,8 +114,11 @@ def matches(value, hint) -> bool:
         return type(value) is hint
     if hint is Path:
         return isinstance(value, (str, Path))
-    if origin is tuple:
-        return isinstance(value, (list, tuple)) and all(matches(item, typing.get_args(hint)[0]) for item in value)
+    items = _items(hint)
+    if items is not None:
+        if not isinstance(value, (list, tuple)) or (items[-1] is not Ellipsis and len(value) != len(items)):
+            return False
+        return all(matches(item, kind) for item, kind in zip(value, _item_types(items, len(value))))
     raise TypeError(f"settings of type {hint} are not supported")
 
 
@@ -116,8 +134,10 @@ def _convert(value, hint):
         return Path(value)
     if hint is float:
         return float(value)
-    if typing.get_origin(hint) is tuple:
-        return tuple(_convert(item, typing.get_args(hint)[0]) for item in value)
+    items = _items(hint)
+    if items is not None:
+        converted = [_convert(item, kind) for item, kind in zip(value, _item_types(items, len(value)))]
+        return converted if typing.get_origin(hint) is list else tuple(converted)
     return value
 
 
@@ -171,7 +191,7 @@ def with_settings(obj: T, settings: dict[str, Any], source: str | Path = "settin
 def to_dict_value(value):
     if isinstance(value, Path):
         return str(value)
-    if isinstance(value, tuple):
+    if isinstance(value, (list, tuple)):
         return [to_dict_value(v) for v in value]
     return value
 
@@ -193,6 +213,7 @@ def flatten(d: dict, prefix: str = "") -> dict:
 
 _POSITIONAL = _markers(tyro.conf.Positional[int])
 _OMIT_PREFIX = tyro.conf.OmitArgPrefixes
+_APPEND = tyro.conf.UseAppendAction
 
 
 def _renamed(hint) -> str | None:
@@ -293,8 +314,12 @@ def parse_flag_settings(cls, argv: list[str], prog: str) -> dict[str, Any]:
             parser.add_argument(strings[0], dest=flag.key, action="store_const", const=True, default=argparse.SUPPRESS)
             parser.add_argument(strings[1], dest=flag.key, action="store_const", const=False, default=argparse.SUPPRESS)
         else:
-            is_list = typing.get_origin(hint) is tuple
-            parser.add_argument(strings[0], dest=flag.key, nargs="*" if is_list else None, default=argparse.SUPPRESS)
+            items = _items(hint)
+            if _APPEND in _markers(flag.hint):  # --run A --run B
+                parser.add_argument(strings[0], dest=flag.key, action="append", default=argparse.SUPPRESS)
+                continue
+            nargs = None if items is None else "*" if items[-1] is Ellipsis else len(items)
+            parser.add_argument(strings[0], dest=flag.key, nargs=nargs, default=argparse.SUPPRESS)
     values = vars(parser.parse_args(argv))
     hints = {flag.key: (flag.hint, "--" + flag.flag) for flag in flags_of(cls)}
     settings = {}
@@ -303,7 +328,8 @@ def parse_flag_settings(cls, argv: list[str], prog: str) -> dict[str, Any]:
         if isinstance(value, bool):
             settings[key] = value
         elif isinstance(value, list):
-            settings[key] = tuple(_parse_value(v, typing.get_args(_strip(hint))[0], flag) for v in value)
+            kinds = _item_types(_items(hint), len(value))
+            settings[key] = _convert([_parse_value(v, kind, flag) for v, kind in zip(value, kinds)], hint)
         else:
             settings[key] = _parse_value(value, hint, flag)
     return settings
