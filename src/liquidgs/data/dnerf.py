@@ -8,6 +8,7 @@ from pathlib import Path, PurePosixPath
 import numpy as np
 import torch
 
+from liquidgs.cameras import Camera, centred_intrinsics, focal_from_fov
 from liquidgs.data.images import ImageLoader
 from liquidgs.data.scene import BACKGROUNDS, DataConfig, Frame, SceneDataset
 from liquidgs.data.validate import as_array, as_number, check_rotation, probe_image, read_json, require
@@ -85,19 +86,8 @@ def _read_split(path: Path, root: Path, factor: int, loader: ImageLoader) -> lis
         if width < 1 or height < 1:
             raise ConfigError(f"data.downscale: {factor} is larger than the images of {path}")
 
-        focal = 0.5 * width / math.tan(0.5 * angle_x)
-        K = torch.tensor([[focal, 0.0, width / 2], [0.0, focal, height / 2], [0.0, 0.0, 1.0]], dtype=torch.float32)
         viewmat = torch.from_numpy(np.linalg.inv(cam_to_world @ BLENDER_TO_OPENCV)).float()
-        frames.append(
-            Frame(
-                name=name,
-                time=time,
-                width=width,
-                height=height,
-                K=K,
-                viewmat=viewmat,
-                image_path=image,
-                _loader=loader,
-            )
-        )
+        K = centred_intrinsics(focal_from_fov(angle_x, width), width, height)
+        camera = Camera(viewmat, K, width, height)
+        frames.append(Frame(name=name, time=time, camera=camera, image_path=image, _loader=loader))
     return frames

@@ -15,13 +15,9 @@ import math
 import torch
 
 from liquidgs.gaussians.neighbors import mean_sq_dist_to_neighbors
+from liquidgs.sh import SH_C0, num_sh_bases
 
 PARAM_KEYS = ("means", "scales", "quats", "opacities", "sh0", "shN")
-SH_C0 = 0.28209479177387814
-
-
-def num_sh_bases(degree: int) -> int:
-    return (degree + 1) ** 2
 
 
 def rgb_to_sh0(rgb: torch.Tensor) -> torch.Tensor:

@@ -391,7 +391,7 @@ class Trainer:
     # ----------------------------------------------------------------- evaluation
     def _render(self, gaussians, frame, absgrad: bool = False):
         return render_frame(
-            gaussians, frame.viewmat, frame.K, frame.width, frame.height,
+            gaussians, frame.camera,
             sh_degree=self.state.sh_degree, background=self.background, backend=self.cfg.backend, absgrad=absgrad,
         )  # fmt: skip
 
@@ -481,7 +481,7 @@ class Trainer:
             "torch": torch.__version__,
             "lpips_backbone": cfg.eval.lpips_backbone,
             "lpips_normalize": cfg.eval.lpips_normalize,
-            "resolution": [self.dataset.train[0].width, self.dataset.train[0].height],
+            "resolution": [self.dataset.train[0].camera.width, self.dataset.train[0].camera.height],
             "perturb": cfg.perturb.settings(),
             "views": {"train": len(self.dataset.train), "test": len(self.dataset.test)},
         }
