@@ -16,7 +16,8 @@ from liquidgs.data import (
     generate_synthetic,
     load_dataset,
 )
-from liquidgs.data.synthetic import SCENE_BOUND, scene_primitives, surface_points
+from liquidgs.data.dnerf import SCENE_BOUND
+from liquidgs.data.synthetic import scene_primitives, surface_points
 from liquidgs.errors import ConfigError
 
 SIZE, FRAMES = 64, 24

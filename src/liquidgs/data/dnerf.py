@@ -16,6 +16,10 @@ from liquidgs.errors import ConfigError, DataError
 
 SPLIT_FILES = {"train": "transforms_train.json", "test": "transforms_test.json", "val": "transforms_val.json"}
 
+SCENE_BOUND = 1.3
+"""D-NeRF's Blender scenes lie inside [-1.3, 1.3]^3: D-3DGS draws its random initial Gaussians there
+(TrainConfig.init_extent) and the built-in synthetic scenes keep their surfaces inside it."""
+
 # Blender/OpenGL cameras look down -z with y up; OpenCV looks down +z with y down.
 BLENDER_TO_OPENCV = np.diag([1.0, -1.0, -1.0, 1.0])
 

@@ -33,7 +33,6 @@ from liquidgs.errors import ConfigError
 
 CAMERA_RADIUS = 4.0
 ELEVATION_RANGE = (math.radians(-20.0), math.radians(75.0))
-SCENE_BOUND = 1.3  # every surface stays inside [-1.3, 1.3]^3, where the trainer seeds Gaussians
 POINT_COUNT = 4096
 # World-fixed key and fill lights: shade = ambient + sum(weight * max(0, n . light)).
 LIGHTS = ((np.array([0.4, -0.5, 0.77]), 0.6), (np.array([-0.5, 0.6, -0.3]), 0.25))

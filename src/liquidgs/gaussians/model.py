@@ -49,7 +49,7 @@ def _params_from(means: torch.Tensor, sh0: torch.Tensor, sh_degree: int, init_op
 
 def init_random_box(
     n: int,
-    half_extent: float = 1.3,
+    half_extent: float,
     sh_degree: int = 3,
     seed: int = 0,
     init_opacity: float = 0.1,

@@ -16,6 +16,7 @@ import tyro
 import yaml
 
 from liquidgs.atomic import write_text_atomic
+from liquidgs.data.dnerf import SCENE_BOUND
 from liquidgs.data.perturb import PerturbConfig
 from liquidgs.errors import ConfigError
 from liquidgs.fields import FieldConfig, FieldOptions
@@ -93,7 +94,7 @@ class TrainConfig:
     ssim_weight: float = 0.2
     init_points: int = 100_000
     """Random initial points in [-init_extent, init_extent]^3 (used when the data has no point cloud)."""
-    init_extent: float = 1.3
+    init_extent: float = SCENE_BOUND
     smooth_time: bool = False
     """Annealed smooth training (D-3DGS, real data): t + N(0,1) * scale * s(i) after warm-up."""
     smooth_time_steps: int = 20_000

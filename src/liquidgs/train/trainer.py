@@ -23,6 +23,7 @@ from liquidgs.data import DataConfig, SceneDataset, load_dataset, perturb_datase
 from liquidgs.data.scene import MIN_CAMERA_EXTENT
 from liquidgs.errors import ConfigError, LiquidGSError
 from liquidgs.eval import LPIPS, LPIPSUnavailable, evaluate_views, ssim
+from liquidgs.eval.metrics import MIN_MSE, psnr_from_mse
 from liquidgs.fields import build_field
 from liquidgs.gaussians import PARAM_KEYS, init_from_points, init_random_box
 from liquidgs.train.config import TrainConfig, save_yaml
@@ -281,7 +282,7 @@ class Trainer:
         clock.mark("optimizer_step")
         with torch.no_grad():
             mse = ((out.rgb.detach().clamp(0, 1) - gt) ** 2).mean()
-            train_psnr = float(-10.0 * torch.log10(mse.clamp_min(1e-12)))
+            train_psnr = float(psnr_from_mse(mse.clamp_min(MIN_MSE)))
         self._guard_divergence(step, train_psnr)
         disturbance = self._scheduled_disturbance(step, sh_raised, n_before, report)
         if disturbance:
