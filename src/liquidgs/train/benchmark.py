@@ -21,6 +21,7 @@ import torch
 
 from liquidgs.data import DEFAULT_SYNTHETIC_SCENE, generate_synthetic
 from liquidgs.errors import ConfigError
+from liquidgs.render import BACKENDS
 from liquidgs.render.benchmark import machine_description
 from liquidgs.train.config import FIELDS, PRESETS, preset_config, validate
 from liquidgs.train.model import deform
@@ -36,7 +37,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--downscale", type=int, help="image downscale of --data")
     parser.add_argument("--preset", default="tiny", choices=PRESETS)
     parser.add_argument("--field", default="mlp", choices=FIELDS)
-    parser.add_argument("--backend", default="auto", choices=("auto", "torch", "cpu", "gsplat"))
+    parser.add_argument("--backend", default="auto", choices=BACKENDS)
     parser.add_argument("--device", default="auto")
     parser.add_argument("--from-step", type=int, default=700, help="untimed steps first (default 700)")
     parser.add_argument("--steps", type=int, default=300, help="timed steps (default 300)")
