@@ -37,13 +37,14 @@ def test_shared_scene_loads_with_counts_sizes_and_intrinsics(scene):
     focal = 0.5 * 100 / math.tan(0.5 * angle_x)
     expected_K = torch.tensor([[focal, 0, 50], [0, focal, 50], [0, 0, 1]], dtype=torch.float32)
     for frame in ds.train + ds.splits["val"] + ds.test:
-        assert (frame.width, frame.height) == (100, 100)
-        torch.testing.assert_close(frame.K, expected_K)
+        assert (frame.camera.width, frame.camera.height) == (100, 100)
+        torch.testing.assert_close(frame.camera.K, expected_K)
         assert 0.0 <= frame.time <= 1.0
         # The D-NeRF cameras look at the origin: in OpenCV axes it is in front (z > 0), at the centre.
-        point = frame.viewmat @ torch.tensor([0.0, 0.0, 0.0, 1.0])
+        point = frame.camera.viewmat @ torch.tensor([0.0, 0.0, 0.0, 1.0])
         assert point[2] > 0
-        torch.testing.assert_close((frame.K @ point[:3])[:2] / point[2], torch.tensor([50.0, 50.0]), atol=1e-3, rtol=0)
+        pixel = (frame.camera.K @ point[:3])[:2] / point[2]
+        torch.testing.assert_close(pixel, torch.tensor([50.0, 50.0]), atol=1e-3, rtol=0)
     assert 4.0 < ds.camera_extent < 6.0  # cameras on a sphere of radius ~4
     assert ds.points is None and ds.point_colors is None
 

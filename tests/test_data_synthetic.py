@@ -16,7 +16,8 @@ from liquidgs.data import (
     generate_synthetic,
     load_dataset,
 )
-from liquidgs.data.synthetic import SCENE_BOUND, scene_primitives, surface_points
+from liquidgs.data.dnerf import SCENE_BOUND
+from liquidgs.data.synthetic import scene_primitives, surface_points
 from liquidgs.errors import ConfigError
 
 SIZE, FRAMES = 64, 24
@@ -40,9 +41,9 @@ def test_both_layouts_give_the_same_cameras_times_and_images(scene_dir):
         assert len(dnerf.splits[split]) == len(nerfies.splits[split]) > 0
         for a, b in zip(dnerf.splits[split], nerfies.splits[split]):
             assert a.time == b.time
-            assert (a.width, a.height) == (b.width, b.height) == (SIZE, SIZE)
-            torch.testing.assert_close(a.K, b.K)
-            torch.testing.assert_close(a.viewmat, b.viewmat, atol=1e-5, rtol=0)
+            assert (a.camera.width, a.camera.height) == (b.camera.width, b.camera.height) == (SIZE, SIZE)
+            torch.testing.assert_close(a.camera.K, b.camera.K)
+            torch.testing.assert_close(a.camera.viewmat, b.camera.viewmat, atol=1e-5, rtol=0)
             torch.testing.assert_close(a.image(), b.image(), atol=0, rtol=0)
     assert dnerf.camera_extent == pytest.approx(nerfies.camera_extent, rel=1e-5)
     # Test frames are interleaved in time between training frames.
@@ -56,15 +57,15 @@ def test_head_centre_projects_onto_the_rendered_head(scene_dir, layout):
     # At times 0 and 1 the arms hang down, so nothing hides the head from any camera.
     for frame in (ds.train[0], ds.train[-1]):
         head = next(p for p in scene_primitives(DEFAULT_SYNTHETIC_SCENE, frame.time) if p.name == "head")
-        point = frame.viewmat @ torch.tensor([*head.translation, 1.0], dtype=torch.float32)
-        u, v = ((frame.K @ point[:3]) / point[2])[:2].tolist()
+        point = frame.camera.viewmat @ torch.tensor([*head.translation, 1.0], dtype=torch.float32)
+        u, v = ((frame.camera.K @ point[:3]) / point[2])[:2].tolist()
         # Pixel (i, j) covers [i, i+1) x [j, j+1): its centre is at (i + 0.5, j + 0.5).
         pixel = frame.image()[int(v), int(u)].numpy()
         # Shading scales the colour; its chromaticity is the head's magenta.
         expected = np.asarray(head.colors[0]) / sum(head.colors[0])
         np.testing.assert_allclose(pixel / pixel.sum(), expected, atol=0.04)
         # Its projected radius is ~r*f/z pixels: a step of twice that lands on the background.
-        radius = head.size[0] * float(frame.K[0, 0]) / float(point[2])
+        radius = head.size[0] * float(frame.camera.K[0, 0]) / float(point[2])
         outside = frame.image()[int(v), min(int(u + 2.2 * radius), SIZE - 1)]
         assert not torch.allclose(outside, frame.image()[int(v), int(u)], atol=0.05)
 
@@ -106,7 +107,7 @@ def test_nerfies_points_and_cameras_move_into_the_scene_frame(scene_dir, tmp_pat
     np.testing.assert_allclose(ds.points.numpy(), (raw - center) * scale, rtol=1e-6, atol=1e-6)
     assert ds.point_colors is None
     position = json.loads((root / "camera" / f"{ds.train[0].name}.json").read_text())["position"]
-    np.testing.assert_allclose(ds.train[0].camera_center.numpy(), (np.array(position) - center) * scale, atol=1e-5)
+    np.testing.assert_allclose(ds.train[0].camera.centre.numpy(), (np.array(position) - center) * scale, atol=1e-5)
 
 
 def test_interp_preset_takes_every_fourth_id_at_half_resolution(scene_dir):
@@ -116,8 +117,8 @@ def test_interp_preset_takes_every_fourth_id_at_half_resolution(scene_dir):
     # Only rgb/1x exists: the 1/2 images are area-averaged from it, intrinsics halved.
     full = load_dataset(DataConfig(path=scene_dir / "nerfies", split="interp", downscale=1))
     half, one = ds.train[1], full.train[1]
-    assert (half.width, half.height) == (SIZE // 2, SIZE // 2)
-    torch.testing.assert_close(half.K[:2], one.K[:2] / 2)
+    assert (half.camera.width, half.camera.height) == (SIZE // 2, SIZE // 2)
+    torch.testing.assert_close(half.camera.K[:2], one.camera.K[:2] / 2)
     expected = one.image().reshape(SIZE // 2, 2, SIZE // 2, 2, 3).mean(dim=(1, 3))
     # `expected` was rounded to 8 bits before averaging, `half` only after: 1 level apart at most.
     torch.testing.assert_close(half.image(), expected, atol=1.01 / 255, rtol=0)
@@ -125,7 +126,7 @@ def test_interp_preset_takes_every_fourth_id_at_half_resolution(scene_dir):
 
 def test_vrig_preset_reads_quarter_resolution(scene_dir):
     ds = load_dataset(DataConfig(path=scene_dir / "nerfies", split="vrig"))
-    assert (ds.train[0].width, ds.train[0].height) == (SIZE // 4, SIZE // 4)
+    assert (ds.train[0].camera.width, ds.train[0].camera.height) == (SIZE // 4, SIZE // 4)
     assert ds.kind == "real"
 
 
@@ -135,7 +136,8 @@ def test_split_presets_are_rejected_for_dnerf(scene_dir):
 
 
 def test_moving_mask_marks_where_the_ground_truth_moves():
-    from liquidgs.data.synthetic import CAMERA_ANGLE_X, moving_mask, orbit_camera
+    from liquidgs.cameras import DNERF_CAMERA_ANGLE_X as CAMERA_ANGLE_X
+    from liquidgs.data.synthetic import moving_mask, orbit_camera
 
     size = 48
     focal = 0.5 * size / np.tan(0.5 * CAMERA_ANGLE_X)

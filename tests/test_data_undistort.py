@@ -141,8 +141,8 @@ def test_the_cameras_become_pinhole_and_the_images_match_a_pinhole_render(distor
     for downscale in (1, 2):
         report = check_dataset(DataConfig(path=out, downscale=downscale))
         assert report.dataset.warnings == [] and report.images_decoded == FRAMES
-        assert (report.dataset.train[0].width, report.dataset.train[0].height) == (size[0] // downscale,
-                                                                                   size[1] // downscale)  # fmt: skip
+        camera = report.dataset.train[0].camera
+        assert (camera.width, camera.height) == (size[0] // downscale, size[1] // downscale)
     code, stdout, _ = run_cli(["data", "check", str(out)])
     assert code == 0 and "all OK" in stdout
 

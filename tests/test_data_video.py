@@ -188,7 +188,7 @@ def test_times_follow_frame_order_and_data_check_passes_at_every_scale(video_sce
         times = [frame.time for frame in frames]
         assert times == pytest.approx([n / (FRAMES - 1) for n in range(FRAMES)])
         assert report.images_decoded == FRAMES
-        assert (frames[0].width, frames[0].height) == (width // downscale, height // downscale)
+        assert (frames[0].camera.width, frames[0].camera.height) == (width // downscale, height // downscale)
     dataset = json.loads((out / "dataset.json").read_text())
     assert dataset["val_ids"] == [f"{n:06d}" for n in range(4, FRAMES, 8)]  # every 8th, stated in the README
     assert json.loads((out / "capture.json").read_text())["holdout_every"] == 8
@@ -388,10 +388,8 @@ def test_a_distorted_video_gives_pinhole_cameras_and_undistorted_frames(distorte
     assert capture["undistortion"]["to"]["size"] == capture["image_size"] == [width, height]
     assert "undistortion: SIMPLE_RADIAL 200x152" in stdouts["undistorted"]
     report = check_dataset(DataConfig(path=out, downscale=4))
-    assert report.dataset.warnings == [] and (report.dataset.train[0].width, report.dataset.train[0].height) == (
-        width // 4,
-        height // 4,
-    )
+    camera = report.dataset.train[0].camera
+    assert report.dataset.warnings == [] and (camera.width, camera.height) == (width // 4, height // 4)
 
     rmse, path_length = centre_error(out, video.cam_to_world, int)
     assert rmse <= MAX_PATH_ERROR * path_length, (rmse, path_length)

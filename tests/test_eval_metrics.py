@@ -13,6 +13,7 @@ from scipy.signal import correlate2d
 
 from liquidgs.errors import ConfigError
 from liquidgs.eval import psnr, quantize_8bit, ssim
+from liquidgs.eval.metrics import MIN_MSE, psnr_from_mse
 
 
 def smooth_image(height: int, width: int, seed: int, dtype=torch.float64) -> torch.Tensor:
@@ -137,3 +138,10 @@ def test_quantize_8bit_matches_save_image_and_png_round_trip():
     assert torch.equal(quantized, read_back)
     assert quantized[0, 0].tolist() == pytest.approx([3 / 255, 0.0, 1.0])
     assert torch.equal(quantize_8bit(quantized), quantized)
+
+
+def test_psnr_from_mse_is_the_reference_formula_and_the_floor_is_120_db():
+    mse = torch.tensor([1e-6, 0.01, 0.25], dtype=torch.float64)
+    torch.testing.assert_close(psnr_from_mse(mse), -10.0 * torch.log10(mse))
+    assert psnr_from_mse(torch.tensor(0.0)).item() == math.inf
+    assert psnr_from_mse(torch.tensor(MIN_MSE, dtype=torch.float64)).item() == pytest.approx(120.0)

@@ -61,7 +61,7 @@ def test_random_box_init_follows_d3dgs():
     # Near-grey: DC in [0, 1/255] renders as 0.5 plus at most a hair.
     rgb = params["sh0"] * 0.28209479177387814 + 0.5
     assert rgb.min() >= 0.5 and rgb.max() < 0.5 + 0.3 / 255
-    again = init_random_box(2000, seed=1)
+    again = init_random_box(2000, 1.3, seed=1)
     assert torch.equal(again["means"], params["means"])
 
 
@@ -78,7 +78,7 @@ def test_point_cloud_init_keeps_colours():
 
 @pytest.mark.parametrize("sh_degree", [0, 3])
 def test_ply_round_trip_is_bit_exact(tmp_path, sh_degree):
-    params = init_random_box(500, sh_degree=sh_degree, seed=3)
+    params = init_random_box(500, 1.3, sh_degree=sh_degree, seed=3)
     with torch.no_grad():
         for value in params.values():
             value.add_(torch.randn_like(value))
@@ -92,7 +92,7 @@ def test_ply_round_trip_is_bit_exact(tmp_path, sh_degree):
 def test_ply_layout_is_the_standard_one(tmp_path):
     from plyfile import PlyData
 
-    params = init_random_box(10, sh_degree=3, seed=0)
+    params = init_random_box(10, 1.3, sh_degree=3, seed=0)
     write_ply(tmp_path / "a.ply", params)
     ply = PlyData.read(str(tmp_path / "a.ply"))
     names = [p.name for p in ply["vertex"].properties]

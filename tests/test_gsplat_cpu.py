@@ -298,6 +298,23 @@ def test_depth_on_the_near_and_far_planes_is_kept_as_gsplat_does(stand_in, dtype
                 assert_close(getattr(theirs, name), getattr(ours, name), TOLERANCES[dtype], f"{backend} {name}")
 
 
+def test_every_backend_returns_the_same_info(stand_in):
+    """One info builder: the same keys from each backend, and tiling figures that mean the same."""
+    scene = make_scene(torch.float32, 1)
+    backends = ["torch", "gsplat"] + (["cpu"] if cpu_backend.unavailable_reason(scene["means"]) is None else [])
+    infos = {backend: render(scene, backend, tile_size=8)[0].info for backend in backends}
+    keys = set(infos["torch"])
+    assert {"means2d", "radii", "radii_xy", "visible", "depths", "conics", "tile_size", "n_pairs"} <= keys
+    for backend, info in infos.items():
+        assert set(info) == keys and info["backend"] == backend, backend
+        assert torch.equal(info["radii"], info["radii_xy"].amax(dim=1)), backend
+    # gsplat tiles at its own 16 px: a Gaussian's pairs are the 16 px tiles its box touches.
+    assert infos["gsplat"]["tile_size"] == gsplat_backend.GSPLAT_TILE_SIZE
+    assert 0 < infos["gsplat"]["n_pairs"] < infos["torch"]["n_pairs"]
+    if "cpu" in infos:
+        assert (infos["cpu"]["tile_size"], infos["cpu"]["n_pairs"]) == (8, infos["torch"]["n_pairs"])
+
+
 def test_a_kernel_without_a_stand_in_raises_instead_of_compiling(stand_in):
     quats, scales = torch.randn(3, 4), torch.rand(3, 3)
     with pytest.raises(RuntimeError, match="no CPU stand-in"):

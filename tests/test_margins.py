@@ -76,8 +76,8 @@ def test_moving_region_is_the_synthetic_mask_of_the_view(tiny_scene):
     assert frame_step(frames) == pytest.approx(1 / 8)
     frame = dataset.test[0]
     mask = moving_region("puppet", frame, 1 / 8)
-    cam_to_world = np.linalg.inv(frame.viewmat.double().numpy())
-    expected = moving_mask("puppet", frame.K.double().numpy(), cam_to_world, 16, 16, frame.time, 1 / 8)
+    cam_to_world = np.linalg.inv(frame.camera.viewmat.double().numpy())
+    expected = moving_mask("puppet", frame.camera.K.double().numpy(), cam_to_world, 16, 16, frame.time, 1 / 8)
     assert mask.dtype == bool and mask.shape == (16, 16) and (mask == expected).all() and mask.any()
     with pytest.raises(DataError, match="two distinct frame times"):
         frame_step(frames[:1])
@@ -89,7 +89,8 @@ def test_foreground_is_any_alpha_in_the_downscaled_block(tmp_path, tiny_scene):
     rgba[0, 0, 3] = 1  # one faint sub-pixel: block (0, 0) is foreground
     rgba[5:8, 6:9, 3] = 255  # at factor 2: block rows 2-3, block columns 3-4
     Image.fromarray(rgba, "RGBA").save(tmp_path / "view.png")
-    small = dataclasses.replace(frame, width=6, height=4, image_path=tmp_path / "view.png")
+    small_camera = dataclasses.replace(frame.camera, width=6, height=4)
+    small = dataclasses.replace(frame, camera=small_camera, image_path=tmp_path / "view.png")
     mask = foreground_region(small)
     expected = np.zeros((4, 6), bool)
     expected[0, 0] = True
@@ -98,7 +99,7 @@ def test_foreground_is_any_alpha_in_the_downscaled_block(tmp_path, tiny_scene):
     Image.fromarray(rgba[..., :3], "RGB").save(tmp_path / "rgb.png")
     assert foreground_region(dataclasses.replace(small, image_path=tmp_path / "rgb.png")).all()
     with pytest.raises(DataError, match="whole multiple"):
-        foreground_region(dataclasses.replace(small, width=5))
+        foreground_region(dataclasses.replace(small, camera=dataclasses.replace(small_camera, width=5)))
 
 
 # ----------------------------------------------------------------------------- margins

@@ -9,7 +9,8 @@ import pytest
 import torch
 from gsplat.cuda._torch_impl import _fully_fused_projection, _quat_scale_to_covar_preci, _spherical_harmonics
 
-from liquidgs.render import RenderOutput, cpu_backend, focal_from_fov, rasterize
+from liquidgs.cameras import focal_from_fov
+from liquidgs.render import RenderOutput, cpu_backend, rasterize
 from liquidgs.render.reference import composite_dense
 
 

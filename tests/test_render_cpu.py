@@ -11,8 +11,8 @@ import torch
 
 from liquidgs.render import cpu_backend
 from liquidgs.render.projection import project_gaussians
-from liquidgs.render.rasterize import view_colors
 from liquidgs.render.tiles import bin_gaussians
+from liquidgs.render.torch_backend import view_colors
 from test_render import PARAMETERS, gradients, random_scene, render
 
 pytestmark = pytest.mark.skipif(

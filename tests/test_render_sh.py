@@ -8,8 +8,7 @@ import pytest
 import torch
 from gsplat.cuda._torch_impl import _eval_sh_bases_fast
 
-from liquidgs.render import eval_sh
-from liquidgs.render.sh import eval_sh_bases
+from liquidgs.sh import eval_sh, eval_sh_bases
 
 
 def one_hot_coeffs(index: int, n_bases: int = 16) -> torch.Tensor:

@@ -7,7 +7,7 @@ from liquidgs.train.strategy import D3DGSStrategy, DensifyConfig
 
 
 def make_setup(n=6, extent=1.0):
-    params = init_random_box(n, sh_degree=1, seed=0)
+    params = init_random_box(n, 1.3, sh_degree=1, seed=0)
     with torch.no_grad():
         params["scales"].fill_(math.log(0.005))  # small: clone candidates
         params["scales"][n // 2 :] = math.log(0.05)  # large: split candidates

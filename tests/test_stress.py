@@ -86,19 +86,19 @@ def rotation_angle_deg(a: torch.Tensor, b: torch.Tensor) -> float:
 def test_rotation_angles_follow_the_asked_distribution(dataset):
     big = with_train(dataset, many_frames(dataset, 200))
     moved = perturb_dataset(big, PerturbConfig(pose_rot_deg=2.0), seed=4)
-    angles = np.array([rotation_angle_deg(m.viewmat, f.viewmat) for m, f in zip(moved.train, big.train)])
+    angles = np.array([rotation_angle_deg(m.camera.viewmat, f.camera.viewmat) for m, f in zip(moved.train, big.train)])
     # |N(0, R^2)|: RMS R, mean R * sqrt(2 / pi).
     assert abs(math.sqrt((angles**2).mean()) - 2.0) < 0.1
     assert abs(angles.mean() - 2.0 * math.sqrt(2 / math.pi)) < 0.1
     # Rotation about the camera centre: the centre stays put.
     for m, f in zip(moved.train[:20], big.train[:20]):
-        assert torch.allclose(m.camera_center, f.camera_center, atol=1e-4)
+        assert torch.allclose(m.camera.centre, f.camera.centre, atol=1e-4)
 
 
 def test_translation_has_the_asked_rms_length(dataset):
     big = with_train(dataset, many_frames(dataset, 200))
     moved = perturb_dataset(big, PerturbConfig(pose_trans=0.1), seed=2)
-    shifts = torch.stack([m.camera_center - f.camera_center for m, f in zip(moved.train, big.train)]).double()
+    shifts = torch.stack([m.camera.centre - f.camera.centre for m, f in zip(moved.train, big.train)]).double()
     rms = float(shifts.norm(dim=1).pow(2).mean().sqrt())
     assert abs(rms / (0.1 * big.camera_extent) - 1.0) < 0.05
 
@@ -121,7 +121,7 @@ def test_keep_frames_keeps_evenly_spaced_frames(dataset):
     assert sorted(f.time for f in kept) == [times[0], times[middle], times[-1]]
     every = perturb_dataset(dataset, PerturbConfig(keep_frames=len(times)), seed=0).train
     assert [(f.name, f.time, f.image_path) for f in every] == [(f.name, f.time, f.image_path) for f in dataset.train]
-    assert all(torch.equal(a.viewmat, b.viewmat) for a, b in zip(every, dataset.train))
+    assert all(torch.equal(a.camera.viewmat, b.camera.viewmat) for a, b in zip(every, dataset.train))
     with pytest.raises(ConfigError, match="perturb.keep-frames 999"):
         perturb_dataset(dataset, PerturbConfig(keep_frames=999), seed=0)
 
@@ -142,7 +142,8 @@ def test_test_views_are_untouched_and_the_same_seed_gives_the_same_perturbation(
     other = perturb_dataset(dataset, cfg, seed=8)
     assert a.test == dataset.test and all(type(f) is not NoisyFrame for f in a.test)
     for fa, fb in zip(a.train, b.train):
-        assert fa.time == fb.time and torch.equal(fa.viewmat, fb.viewmat) and torch.equal(fa.image(), fb.image())
+        assert fa.time == fb.time and torch.equal(fa.camera.viewmat, fb.camera.viewmat)
+        assert torch.equal(fa.image(), fb.image())
     assert any(fa.time != fo.time for fa, fo in zip(a.train, other.train))
     assert perturb_dataset(dataset, PerturbConfig(), seed=7) is dataset
 

@@ -86,8 +86,9 @@ def one_error_line(capsys) -> str:
 
 
 def dataset_keyframe(frame, time: float) -> PathCamera:
-    c2w = np.linalg.inv(frame.viewmat.double().numpy())
-    return PathCamera(c2w, math.degrees(2 * math.atan(0.5 * frame.height / float(frame.K[1, 1]))), time)
+    camera = frame.camera
+    c2w = np.linalg.inv(camera.viewmat.double().numpy())
+    return PathCamera(c2w, math.degrees(2 * math.atan(0.5 * camera.height / float(camera.K[1, 1]))), time)
 
 
 def test_camera_path_round_trip_and_render(run_dir, test_renders, tmp_path):
@@ -97,7 +98,8 @@ def test_camera_path_round_trip_and_render(run_dir, test_renders, tmp_path):
     run = load_run(run_dir)
     frames = load_run_dataset(run.config).test
     first, last = dataset_keyframe(frames[0], frames[0].time), dataset_keyframe(frames[1], 1.0)
-    path_file = write_camera_path(tmp_path / "path.json", [first, last], frames[0].width, frames[0].height, 4, 1.0)
+    width, height = frames[0].camera.width, frames[0].camera.height
+    path_file = write_camera_path(tmp_path / "path.json", [first, last], width, height, 4, 1.0)
     record = json.loads(path_file.read_text())
     assert [len(record["camera_path"]), len(record["keyframes"])] == [4, 2]
     assert set(record["camera_path"][0]) == {"camera_to_world", "fov", "aspect", "render_time"}
@@ -108,9 +110,11 @@ def test_camera_path_round_trip_and_render(run_dir, test_renders, tmp_path):
     path = read_camera_path(path_file)
     assert [c.time for c in path.frames] == pytest.approx([frames[0].time, (2 * frames[0].time + 1) / 3,
                                                            (frames[0].time + 2) / 3, 1.0])  # fmt: skip
-    torch.testing.assert_close(path.frames[0].viewmat(), frames[0].viewmat, atol=1e-5, rtol=0)
-    torch.testing.assert_close(path.frames[-1].viewmat(), frames[1].viewmat, atol=1e-5, rtol=0)
-    torch.testing.assert_close(path.frames[0].intrinsics(frames[0].width, frames[0].height), frames[0].K)
+    start, end = path.frames[0].camera(width, height), path.frames[-1].camera(width, height)
+    torch.testing.assert_close(start.viewmat, frames[0].camera.viewmat, atol=1e-5, rtol=0)
+    torch.testing.assert_close(end.viewmat, frames[1].camera.viewmat, atol=1e-5, rtol=0)
+    torch.testing.assert_close(start.K, frames[0].camera.K)
+    assert (start.width, start.height) == (width, height)
 
     assert cli(["render", "--run", str(run_dir), "--camera-path", str(path_file), "--out", str(tmp_path)]) == 0
     video = imageio.mimread(tmp_path / "path.mp4")
@@ -208,7 +212,7 @@ def test_uncertainty_is_the_estimate_render_writes(run_dir, tmp_path):
 
     scene = load_runs([run_dir])[0]
     frame = scene.dataset.test[0]
-    camera, _ = letterbox(frame, frame.width, frame.height)
+    camera, _ = letterbox(frame, frame.camera.width, frame.camera.height)
     torch.manual_seed(7)
     std = scene.uncertainty(camera, frame.time, 4)
     torch.manual_seed(7)
@@ -217,7 +221,8 @@ def test_uncertainty_is_the_estimate_render_writes(run_dir, tmp_path):
     assert float(std.max()) == pytest.approx(written["max_std"], rel=1e-6) and written["max_std"] > 0
     assert float(std.mean()) == pytest.approx(written["mean_std"], rel=1e-6)
     image, peak = heat_map(std)
-    assert peak == pytest.approx(written["max_std"], rel=1e-6) and image.shape == (frame.height, frame.width, 3)
+    assert peak == pytest.approx(written["max_std"], rel=1e-6)
+    assert image.shape == (frame.camera.height, frame.camera.width, 3)
 
 
 def test_command_binds_to_localhost_and_ctrl_c_stops_it(run_dir):
@@ -306,7 +311,8 @@ def box_in_screenshot(screenshot: np.ndarray, viewer, frame) -> np.ndarray:
     _, (x0, y0, box_w, box_h) = letterbox(frame, render_w, render_h)
     sx, sy = width / render_w, height / render_h
     crop = screenshot[round(y0 * sy) : round((y0 + box_h) * sy), round(x0 * sx) : round((x0 + box_w) * sx)]
-    return np.asarray(Image.fromarray(crop).resize((frame.width, frame.height), Image.BOX), dtype=np.float32)
+    size = (frame.camera.width, frame.camera.height)
+    return np.asarray(Image.fromarray(crop).resize(size, Image.BOX), dtype=np.float32)
 
 
 def mean_difference(a: np.ndarray, b: np.ndarray) -> float:
@@ -405,7 +411,6 @@ def test_viewer_in_a_real_browser(browser, run_dir, test_renders, tmp_path):
     scene = load_runs([run_dir])[0]
     for i in (0, -1):
         camera = path.frames[i]
-        expected = scene.run.render(camera.viewmat(), camera.intrinsics(path.width, path.height), path.width,
-                                    path.height, camera.time, scene.background).rgb  # fmt: skip
+        expected = scene.run.render(camera.camera(path.width, path.height), camera.time, scene.background).rgb
         assert mean_difference(video[i][: path.height, : path.width], to_uint8(expected)) < 2.0
     assert mean_difference(video[0], video[-1]) > 0.1

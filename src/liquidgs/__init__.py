@@ -3,6 +3,8 @@
 Folders, one idea each, imports flowing one way:
   gaussians/  canonical Gaussian scene model, initialisation, PLY I/O
   native.py   builds and loads the compiled CPU kernels on first use
+  cameras.py  the one Camera type and the camera formulas (data, render and above share it)
+  sh.py       spherical harmonics (the scene model and the rasteriser share it)
   render/     the pure-function rasteriser (torch, compiled CPU and gsplat backends)
   data/       dataset readers, synthetic scenes, validation
   fields/     deformation fields (MLP, liquid CfC, stochastic CfC and variants)

@@ -131,7 +131,7 @@ def moving_region_psnr(args: DemoArgs, loaded: dict[str, TrainedRun], frames, ba
 
     def renders(run: TrainedRun):
         for frame in frames:
-            yield to_uint8(run.render(frame.viewmat, frame.K, frame.width, frame.height, frame.time, background).rgb)
+            yield to_uint8(run.render(frame.camera, frame.time, background).rgb)
 
     return {name: region_psnr(renders(run), truths, masks) for name, run in loaded.items()}, region_share(masks)
 
@@ -144,28 +144,26 @@ def write_report(args: DemoArgs, runs: dict[str, Path], data_path: Path) -> Path
     background = torch.tensor(dataset.background, dtype=torch.float32)
 
     # Small renders are enlarged (nearest neighbour) so the limbs and the labels can be seen.
-    zoom = max(1, DISPLAY_SIZE // max(frames[0].width, frames[0].height))
+    zoom = max(1, DISPLAY_SIZE // max(frames[0].camera.width, frames[0].camera.height))
 
     def enlarged(image: np.ndarray) -> np.ndarray:
         return image.repeat(zoom, axis=0).repeat(zoom, axis=1)
 
-    def render(run: TrainedRun, viewmat, frame, t):
-        return enlarged(to_uint8(run.render(viewmat, frame.K, frame.width, frame.height, t, background).rgb))
+    def render(run: TrainedRun, frame, t):
+        return enlarged(to_uint8(run.render(frame.camera, t, background).rgb))
 
     moving, moving_share = moving_region_psnr(args, loaded, frames, background)
     index = fastest_moving_frame(loaded["mlp"], frames)
     frame = frames[index]
     panels = [labelled(enlarged(frame.image_uint8()), "ground truth")]
-    panels += [labelled(render(run, frame.viewmat, frame, frame.time), FIELD_LABELS[n]) for n, run in loaded.items()]
+    panels += [labelled(render(run, frame, frame.time), FIELD_LABELS[n]) for n, run in loaded.items()]
     write_png(args.out / "side_by_side.png", np.concatenate(panels, axis=1))
 
     fixed = frames[0]
     sweep = []
     for i in range(48):
         t = i / 47
-        row = [
-            labelled(render(run, fixed.viewmat, fixed, t), f"{FIELD_LABELS[n]} t={t:.2f}") for n, run in loaded.items()
-        ]
+        row = [labelled(render(run, fixed, t), f"{FIELD_LABELS[n]} t={t:.2f}") for n, run in loaded.items()]
         sweep.append(np.concatenate(row, axis=1))
     write_video(args.out / "sweep.mp4", sweep, fps=12)
 
@@ -186,7 +184,7 @@ def write_report(args: DemoArgs, runs: dict[str, Path], data_path: Path) -> Path
     lines = [
         f"# liquidgs demo: {args.scene}",
         "",
-        f"Scene: built-in synthetic `{args.scene}` at {frame.width}x{frame.height}, "
+        f"Scene: built-in synthetic `{args.scene}` at {frame.camera.width}x{frame.camera.height}, "
         f"{len(dataset.train)} train / {len(dataset.test)} test frames (data: `{data_path}`).",
         f"Preset `tiny` stretched to {results['mlp']['iterations']} iterations (learning-rate decays over all of "
         f"them, densification until 3/4 with a gradient threshold of {DENSIFY_GRAD_THRESHOLD}, opacity reset every "

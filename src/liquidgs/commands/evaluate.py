@@ -59,7 +59,7 @@ def evaluate_run(args: EvalArgs) -> dict:
     background = torch.tensor(dataset.background, dtype=torch.float32)
 
     def render(frame):
-        return run.render(frame.viewmat, frame.K, frame.width, frame.height, frame.time, background).rgb
+        return run.render(frame.camera, frame.time, background).rgb
 
     summary, per_view = evaluate_views(
         render, dataset.splits[args.split], lpips=lpips, lpips_error=lpips_error, quantize=quantize
@@ -67,8 +67,7 @@ def evaluate_run(args: EvalArgs) -> dict:
     record = {
         "kind": "re-evaluation of the final checkpoint"
         if run.finished
-        else f"re-evaluation of an unfinished run (checkpoint at iteration {run.iteration} "
-        f"of {run.config.iterations})",
+        else f"re-evaluation of an unfinished run (checkpoint at iteration {run.iteration} of {run.config.iterations})",
         "iteration": run.iteration,
         "iterations": run.config.iterations,
         "finished": run.finished,

@@ -15,6 +15,7 @@ viewer's keyframe recorder writes it) only that path is rendered, to <FILE stem>
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -24,10 +25,10 @@ from rich.console import Console
 from rich.progress import track
 
 from liquidgs.atomic import write_json_atomic
+from liquidgs.cameras import orbit
 from liquidgs.errors import ConfigError
 from liquidgs.media import depth_to_uint8, to_uint8, write_png, write_video
 from liquidgs.render.camera_path import CameraPath, read_camera_path
-from liquidgs.render.cameras import orbit
 from liquidgs.settings import parse_flags
 from liquidgs.train.run import TrainedRun, load_run
 from liquidgs.train.trainer import load_run_dataset
@@ -59,9 +60,7 @@ def monte_carlo_views(run: TrainedRun, frames, samples: int, background, out: Pa
     """Per-pixel mean and standard deviation of `samples` noisy renders of every test view."""
     stats = {}
     for frame in track(frames, description="uncertainty", console=console, disable=console is None):
-        stats[frame.name] = run.monte_carlo(
-            frame.viewmat, frame.K, frame.width, frame.height, frame.time, background, samples
-        )
+        stats[frame.name] = run.monte_carlo(frame.camera, frame.time, background, samples)
     peak = max(float(std.max()) for _, std in stats.values()) or 1.0
     with run.field.noise_on():
         noise_level = run.field.current_lambda()
@@ -78,7 +77,7 @@ def render_camera_path(run: TrainedRun, camera_path: CameraPath, background, vid
     width, height = camera_path.width, camera_path.height
     images = []
     for camera in track(camera_path.frames, description="camera path", console=console, disable=console is None):
-        result = run.render(camera.viewmat(), camera.intrinsics(width, height), width, height, camera.time, background)
+        result = run.render(camera.camera(width, height), camera.time, background)
         images.append(to_uint8(result.rgb))
     return write_video(video, images, fps=round(camera_path.fps))
 
@@ -111,7 +110,7 @@ def render_run(args: RenderArgs, console: Console | None = None) -> dict[str, Pa
     quiet = console is None
 
     for frame in track(frames, description="test views", console=console, disable=quiet):
-        result = run.render(frame.viewmat, frame.K, frame.width, frame.height, frame.time, background)
+        result = run.render(frame.camera, frame.time, background)
         write_png(out / "test" / "render" / f"{frame.name}.png", result.rgb)
         write_png(out / "test" / "gt" / f"{frame.name}.png", frame.image())
         write_png(out / "test" / "depth" / f"{frame.name}.png", depth_to_uint8(result.depth, result.alpha))
@@ -120,15 +119,15 @@ def render_run(args: RenderArgs, console: Console | None = None) -> dict[str, Pa
     sweep = []
     for i in track(range(args.sweep_frames), description="time sweep", console=console, disable=quiet):
         t = i / max(args.sweep_frames - 1, 1)
-        image = to_uint8(run.render(fixed.viewmat, fixed.K, fixed.width, fixed.height, t, background).rgb)
+        image = to_uint8(run.render(fixed.camera, t, background).rgb)
         write_png(out / "sweep" / f"{i:04d}.png", image)
         sweep.append(image)
     write_video(out / "sweep.mp4", sweep, fps=args.fps)
 
-    path = orbit(torch.stack([f.viewmat for f in dataset.train]), args.orbit_frames)
+    path = orbit(torch.stack([f.camera.viewmat for f in dataset.train]), args.orbit_frames)
     orbit_frames: list[np.ndarray] = []
     for viewmat in track(path, description="orbit", console=console, disable=quiet):
-        result = run.render(viewmat, fixed.K, fixed.width, fixed.height, args.orbit_time, background)
+        result = run.render(dataclasses.replace(fixed.camera, viewmat=viewmat), args.orbit_time, background)
         orbit_frames.append(to_uint8(result.rgb))
     write_video(out / "orbit.mp4", orbit_frames, fps=args.fps)
     written = {"test": out / "test", "sweep": out / "sweep.mp4", "orbit": out / "orbit.mp4"}

@@ -8,12 +8,17 @@ from pathlib import Path, PurePosixPath
 import numpy as np
 import torch
 
+from liquidgs.cameras import Camera, centred_intrinsics, focal_from_fov
 from liquidgs.data.images import ImageLoader
 from liquidgs.data.scene import BACKGROUNDS, DataConfig, Frame, SceneDataset
 from liquidgs.data.validate import as_array, as_number, check_rotation, probe_image, read_json, require
 from liquidgs.errors import ConfigError, DataError
 
 SPLIT_FILES = {"train": "transforms_train.json", "test": "transforms_test.json", "val": "transforms_val.json"}
+
+SCENE_BOUND = 1.3
+"""D-NeRF's Blender scenes lie inside [-1.3, 1.3]^3: D-3DGS draws its random initial Gaussians there
+(TrainConfig.init_extent) and the built-in synthetic scenes keep their surfaces inside it."""
 
 # Blender/OpenGL cameras look down -z with y up; OpenCV looks down +z with y down.
 BLENDER_TO_OPENCV = np.diag([1.0, -1.0, -1.0, 1.0])
@@ -85,19 +90,8 @@ def _read_split(path: Path, root: Path, factor: int, loader: ImageLoader) -> lis
         if width < 1 or height < 1:
             raise ConfigError(f"data.downscale: {factor} is larger than the images of {path}")
 
-        focal = 0.5 * width / math.tan(0.5 * angle_x)
-        K = torch.tensor([[focal, 0.0, width / 2], [0.0, focal, height / 2], [0.0, 0.0, 1.0]], dtype=torch.float32)
         viewmat = torch.from_numpy(np.linalg.inv(cam_to_world @ BLENDER_TO_OPENCV)).float()
-        frames.append(
-            Frame(
-                name=name,
-                time=time,
-                width=width,
-                height=height,
-                K=K,
-                viewmat=viewmat,
-                image_path=image,
-                _loader=loader,
-            )
-        )
+        K = centred_intrinsics(focal_from_fov(angle_x, width), width, height)
+        camera = Camera(viewmat, K, width, height)
+        frames.append(Frame(name=name, time=time, camera=camera, image_path=image, _loader=loader))
     return frames

@@ -61,20 +61,17 @@ class CheckReport:
 
     def lines(self) -> list[str]:
         ds = self.dataset
-        first = ds.train[0]
-        fx, fy, cx, cy = (
-            float(first.K[0, 0]),
-            float(first.K[1, 1]),
-            float(first.K[0, 2]),
-            float(first.K[1, 2]),
-        )
-        same_k = all(torch.equal(frame.K, first.K) for frames in ds.splits.values() for frame in frames)
+        first_k = ds.train[0].camera.K
+        fx, fy, cx, cy = (float(value) for value in (first_k[0, 0], first_k[1, 1], first_k[0, 2], first_k[1, 2]))
+        same_k = all(torch.equal(frame.camera.K, first_k) for frames in ds.splits.values() for frame in frames)
         lines = [
             f"path:       {ds.root}",
             f"format:     {ds.format} ({ds.kind}), scene '{ds.scene_name}'",
             "frames:     " + ", ".join(f"{name} {len(frames)}" for name, frames in ds.splits.items()),
             "resolution: "
-            + ", ".join(f"{name} {frames[0].width}x{frames[0].height}" for name, frames in ds.splits.items()),
+            + ", ".join(
+                f"{name} {frames[0].camera.width}x{frames[0].camera.height}" for name, frames in ds.splits.items()
+            ),
             f"intrinsics: fx {fx:.3f}  fy {fy:.3f}  cx {cx:.3f}  cy {cy:.3f}"
             + ("" if same_k else "  (first train frame; differs across frames)"),
             "time:       "

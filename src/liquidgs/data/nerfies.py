@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from liquidgs.cameras import Camera
 from liquidgs.data.images import ImageLoader
 from liquidgs.data.scene import BACKGROUNDS, NERFIES_PRESETS, DataConfig, Frame, SceneDataset
 from liquidgs.data.validate import as_array, as_number, check_rotation, probe_image, read_json, require
@@ -175,11 +176,11 @@ def read_nerfies(cfg: DataConfig) -> SceneDataset:
             width, height = probe_image(image, dataset_path, field)
             width, height = width // extra_factor, height // extra_factor
             check_image_size(camera_file, camera, image, (width, height), factor)
-            if frames and (width, height) != (frames[0].width, frames[0].height):
+            if frames and (width, height) != (frames[0].camera.width, frames[0].camera.height):
                 raise DataError(
                     dataset_path,
                     f"image {image} is {width}x{height} but {frames[0].image_path} is "
-                    f"{frames[0].width}x{frames[0].height}; all images of a split must have one size",
+                    f"{frames[0].camera.width}x{frames[0].camera.height}; all images of a split must have one size",
                     field=field,
                 )
             frames.append(
@@ -263,16 +264,8 @@ def _frame(
     viewmat = np.eye(4)
     viewmat[:3, :3] = camera.rotation
     viewmat[:3, 3] = -camera.rotation @ ((camera.position - center) * scale)
-    return Frame(
-        name=image_id,
-        time=time,
-        width=width,
-        height=height,
-        K=K,
-        viewmat=torch.from_numpy(viewmat).float(),
-        image_path=image,
-        _loader=loader,
-    )
+    camera = Camera(torch.from_numpy(viewmat).float(), K, width, height)
+    return Frame(name=image_id, time=time, camera=camera, image_path=image, _loader=loader)
 
 
 def _read_points(path: Path, center: np.ndarray, scale: float) -> tuple[torch.Tensor | None, torch.Tensor | None]:

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from liquidgs.cameras import Camera, camera_centre
 from liquidgs.data.scene import Frame, SceneDataset
 from liquidgs.errors import ConfigError
 
@@ -97,16 +98,14 @@ def _unit_vectors(rng: np.random.Generator, count: int) -> np.ndarray:
     return vectors / np.linalg.norm(vectors, axis=1, keepdims=True)
 
 
-def _moved_camera(viewmat: torch.Tensor, rotation: np.ndarray, shift: np.ndarray) -> torch.Tensor:
-    """world->camera after rotating the camera by `rotation` (in world axes, about its centre) and
-    moving its centre by `shift`."""
-    w2c = viewmat.double().numpy()
-    r, t = w2c[:3, :3], w2c[:3, 3]
-    centre = -r.T @ t + shift
+def _moved_camera(camera: Camera, rotation: np.ndarray, shift: np.ndarray) -> Camera:
+    """The camera rotated by `rotation` (in world axes, about its centre) and its centre moved by `shift`."""
+    r = camera.viewmat.double().numpy()[:3, :3]
+    centre = camera_centre(camera.viewmat.double()).numpy() + shift
     r_new = r @ rotation.T  # camera-to-world rotation R^T becomes rotation @ R^T
     out = np.eye(4)
     out[:3, :3], out[:3, 3] = r_new, -r_new @ centre
-    return torch.from_numpy(out).to(viewmat.dtype)
+    return dataclasses.replace(camera, viewmat=torch.from_numpy(out).to(camera.viewmat.dtype))
 
 
 def _select(train: list[Frame], test: list[Frame], cfg: PerturbConfig) -> tuple[list[Frame], list[Frame]]:
@@ -151,7 +150,7 @@ def perturb_dataset(dataset: SceneDataset, cfg: PerturbConfig, seed: int) -> Sce
         values = {f.name: getattr(frame, f.name) for f in dataclasses.fields(Frame)}
         values["time"] = float(times[i])
         if moved:
-            values["viewmat"] = _moved_camera(frame.viewmat, rotations[i], shifts[i])
+            values["camera"] = _moved_camera(frame.camera, rotations[i], shifts[i])
         if cfg.image_noise > 0:
             noise_seed = (seed, _STREAMS["image_noise"], i)
             frames.append(NoisyFrame(**values, noise_std=cfg.image_noise, noise_seed=noise_seed))

@@ -23,8 +23,9 @@ from liquidgs.errors import DataError
 def moving_region(scene: str, frame: Frame, step: float) -> np.ndarray:
     """bool [H,W]: the pixels of `frame` (a view of built-in scene `scene`) whose ground truth
     changes between frame.time -+ step, seen from the same camera."""
-    cam_to_world = np.linalg.inv(frame.viewmat.double().numpy())
-    return moving_mask(scene, frame.K.double().numpy(), cam_to_world, frame.width, frame.height, frame.time, step)
+    camera = frame.camera
+    K = camera.K.double().numpy()
+    return moving_mask(scene, K, camera.camera_to_world(), camera.width, camera.height, frame.time, step)
 
 
 def frame_step(frames: Iterable[Frame]) -> float:
@@ -41,9 +42,10 @@ def foreground_region(frame: Frame) -> np.ndarray:
     """bool [H,W]: the pixels of `frame` whose stored image has alpha > 0 anywhere in the block
     the (area-averaging) downscale merges into them; an image without alpha is all foreground."""
     rgba = decode_image(frame.image_path)
-    factor = rgba.shape[1] // frame.width
-    if factor < 1 or (rgba.shape[0] // factor, rgba.shape[1] // factor) != (frame.height, frame.width):
+    width, height = frame.camera.width, frame.camera.height
+    factor = rgba.shape[1] // width
+    if factor < 1 or (rgba.shape[0] // factor, rgba.shape[1] // factor) != (height, width):
         raise DataError(frame.image_path, f"{rgba.shape[1]}x{rgba.shape[0]} is not a whole multiple of the "
-                        f"view's {frame.width}x{frame.height}")  # fmt: skip
-    alpha = rgba[: frame.height * factor, : frame.width * factor, 3]
-    return alpha.reshape(frame.height, factor, frame.width, factor).max(axis=(1, 3)) > 0
+                        f"view's {width}x{height}")  # fmt: skip
+    alpha = rgba[: height * factor, : width * factor, 3]
+    return alpha.reshape(height, factor, width, factor).max(axis=(1, 3)) > 0

@@ -10,6 +10,7 @@ import numpy as np
 import torch
 import tyro
 
+from liquidgs.cameras import Camera
 from liquidgs.data.images import ImageLoader
 from liquidgs.errors import ConfigError
 
@@ -61,23 +62,13 @@ class DataConfig:
 
 @dataclass(eq=False)
 class Frame:
-    """One posed image. K and viewmat describe the image as returned by image()."""
+    """One posed image at a time. The camera (float32 viewmat and K) describes the image as image() returns it."""
 
     name: str
     time: float
-    width: int
-    height: int
-    K: torch.Tensor
-    """float32 [3,3] pinhole intrinsics; pixel centres at integer + 0.5."""
-    viewmat: torch.Tensor
-    """float32 [4,4] world -> camera, OpenCV axes (x right, y down, z forward)."""
+    camera: Camera
     image_path: Path
     _loader: ImageLoader = field(repr=False)
-
-    @property
-    def camera_center(self) -> torch.Tensor:
-        rotation, translation = self.viewmat[:3, :3], self.viewmat[:3, 3]
-        return -rotation.T @ translation
 
     def image_uint8(self) -> np.ndarray:
         """Read-only uint8 [H,W,3], composited on the background; shared with the cache."""
@@ -95,7 +86,7 @@ def spread_extent(points: torch.Tensor) -> float:
 
 
 def camera_extent(frames: list[Frame]) -> float:
-    return spread_extent(torch.stack([frame.camera_center for frame in frames]))
+    return spread_extent(torch.stack([frame.camera.centre for frame in frames]))
 
 
 MIN_CAMERA_EXTENT = 1e-6

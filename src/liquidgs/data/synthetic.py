@@ -25,14 +25,14 @@ from pathlib import Path
 from typing import Literal
 
 import numpy as np
+import torch
 from PIL import Image
 
+from liquidgs.cameras import DNERF_CAMERA_ANGLE_X, centred_intrinsics, focal_from_fov
 from liquidgs.errors import ConfigError
 
-CAMERA_ANGLE_X = 0.6911112070083618  # the D-NeRF scenes' horizontal field of view
 CAMERA_RADIUS = 4.0
 ELEVATION_RANGE = (math.radians(-20.0), math.radians(75.0))
-SCENE_BOUND = 1.3  # every surface stays inside [-1.3, 1.3]^3, where the trainer seeds Gaussians
 POINT_COUNT = 4096
 # World-fixed key and fill lights: shade = ambient + sum(weight * max(0, n . light)).
 LIGHTS = ((np.array([0.4, -0.5, 0.77]), 0.6), (np.array([-0.5, 0.6, -0.3]), 0.25))
@@ -440,8 +440,8 @@ def generate_synthetic(
         folder.mkdir(parents=True, exist_ok=True)
 
     rng = np.random.default_rng(seed)
-    focal = 0.5 * size / math.tan(0.5 * CAMERA_ANGLE_X)
-    K = np.array([[focal, 0.0, size / 2], [0.0, focal, size / 2], [0.0, 0.0, 1.0]])
+    focal = focal_from_fov(DNERF_CAMERA_ANGLE_X, size)
+    K = centred_intrinsics(focal, size, size, dtype=torch.float64).numpy()
     transforms: dict[str, list[dict]] = {"train": [], "val": [], "test": []}
     ids = [f"{i:04d}" for i in range(frames)]
     metadata = {}
@@ -481,7 +481,7 @@ def generate_synthetic(
         metadata[image_id] = {"time_id": index, "warp_id": index, "appearance_id": index, "camera_id": 0}
 
     for split, items in transforms.items():
-        _write_json(dnerf / f"transforms_{split}.json", {"camera_angle_x": CAMERA_ANGLE_X, "frames": items})
+        _write_json(dnerf / f"transforms_{split}.json", {"camera_angle_x": DNERF_CAMERA_ANGLE_X, "frames": items})
     train_ids = [i for n, i in enumerate(ids) if split_of(n, frames) == "train"]
     test_ids = [i for n, i in enumerate(ids) if split_of(n, frames) == "test"]
     _write_json(

@@ -17,6 +17,8 @@ from liquidgs import native
 from liquidgs.errors import ConfigError
 from liquidgs.eval import cpu_ssim
 
+MIN_MSE = 1e-12
+"""Where a PSNR must stay finite (training's running PSNR, region PSNRs), the MSE is floored here: 120 dB."""
 SSIM_WINDOW = 11
 SSIM_SIGMA = 1.5
 SSIM_C1 = 0.01**2
@@ -41,14 +43,19 @@ def image_pair(img: torch.Tensor, ref: torch.Tensor) -> tuple[torch.Tensor, torc
     return img_b, ref_b, single
 
 
+def psnr_from_mse(mse: torch.Tensor) -> torch.Tensor:
+    """PSNR in dB of [0, 1] images from their mean squared error: 20 log10(1 / sqrt(MSE)), the
+    reference's formula (+inf at 0)."""
+    return 20.0 * torch.log10(1.0 / torch.sqrt(mse))
+
+
 def psnr(img: torch.Tensor, ref: torch.Tensor) -> torch.Tensor:
-    """Peak signal-to-noise ratio in dB, 20 log10(1 / sqrt(MSE)), per image on [0, 1] images.
+    """Peak signal-to-noise ratio in dB per image on [0, 1] images (`psnr_from_mse`).
 
     Identical images give +inf, as the reference formula does.
     """
     img_b, ref_b, single = image_pair(img, ref)
-    mse = (img_b - ref_b).pow(2).flatten(1).mean(dim=1)
-    scores = 20.0 * torch.log10(1.0 / torch.sqrt(mse))
+    scores = psnr_from_mse((img_b - ref_b).pow(2).flatten(1).mean(dim=1))
     return scores[0] if single else scores
 
 

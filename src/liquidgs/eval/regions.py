@@ -8,15 +8,13 @@ Images are 8-bit, as the evaluation scores renders.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Iterable
 
 import numpy as np
+import torch
 
 from liquidgs.errors import ConfigError
-
-MIN_MSE = 1e-12
-"""Identical regions score 120 dB rather than infinity."""
+from liquidgs.eval.metrics import MIN_MSE, psnr_from_mse
 
 
 def region_psnr(
@@ -35,7 +33,8 @@ def region_psnr(
         count += int(mask.sum()) * truth.shape[-1]
     if count == 0:
         return None
-    return -10.0 * math.log10(max(squared / count, MIN_MSE))
+    # Identical regions score 120 dB (MIN_MSE) rather than infinity.
+    return float(psnr_from_mse(torch.tensor(max(squared / count, MIN_MSE), dtype=torch.float64)))
 
 
 def region_share(masks: Iterable[np.ndarray]) -> float:

@@ -5,7 +5,6 @@ from liquidgs.gaussians.model import (
     activate,
     init_from_points,
     init_random_box,
-    num_sh_bases,
     rgb_to_sh0,
     sh0_to_rgb,
 )
@@ -18,7 +17,6 @@ __all__ = [
     "init_from_points",
     "init_random_box",
     "mean_sq_dist_to_neighbors",
-    "num_sh_bases",
     "read_ply",
     "rgb_to_sh0",
     "sh0_to_rgb",

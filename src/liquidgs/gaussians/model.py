@@ -15,13 +15,9 @@ import math
 import torch
 
 from liquidgs.gaussians.neighbors import mean_sq_dist_to_neighbors
+from liquidgs.sh import SH_C0, num_sh_bases
 
 PARAM_KEYS = ("means", "scales", "quats", "opacities", "sh0", "shN")
-SH_C0 = 0.28209479177387814
-
-
-def num_sh_bases(degree: int) -> int:
-    return (degree + 1) ** 2
 
 
 def rgb_to_sh0(rgb: torch.Tensor) -> torch.Tensor:
@@ -53,7 +49,7 @@ def _params_from(means: torch.Tensor, sh0: torch.Tensor, sh_degree: int, init_op
 
 def init_random_box(
     n: int,
-    half_extent: float = 1.3,
+    half_extent: float,
     sh_degree: int = 3,
     seed: int = 0,
     init_opacity: float = 0.1,

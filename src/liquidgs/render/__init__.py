@@ -1,6 +1,6 @@
-"""Differentiable Gaussian rasterisation: a portable PyTorch backend and gsplat's CUDA kernels."""
+"""Differentiable Gaussian rasterisation: a portable PyTorch backend, compiled CPU kernels and gsplat's CUDA kernels."""
 
-from liquidgs.render.rasterize import BACKENDS, RenderOutput, focal_from_fov, rasterize
-from liquidgs.render.sh import eval_sh
+from liquidgs.render.contract import RenderOutput
+from liquidgs.render.rasterize import BACKENDS, rasterize
 
-__all__ = ["BACKENDS", "RenderOutput", "eval_sh", "focal_from_fov", "rasterize"]
+__all__ = ["BACKENDS", "RenderOutput", "rasterize"]

@@ -22,20 +22,16 @@ from pathlib import Path
 
 import torch
 
+from liquidgs.cameras import DNERF_CAMERA_ANGLE_X, centred_intrinsics, focal_from_fov
 from liquidgs.errors import ConfigError
+from liquidgs.render.contract import DEPTH_ALPHA_FLOOR
 from liquidgs.render.projection import project_gaussians
-from liquidgs.render.rasterize import (
-    BACKENDS,
-    DEPTH_ALPHA_FLOOR,
-    focal_from_fov,
-    rasterize,
-    view_colors,
-)
+from liquidgs.render.rasterize import BACKENDS, rasterize
 from liquidgs.render.reference import composite_dense
+from liquidgs.render.torch_backend import view_colors
 from liquidgs.settings import ArgumentParser
 
 DEFAULT_CASES = "64x64/5000,200x200/20000,800x800/100000"
-DNERF_CAMERA_ANGLE_X = 0.6911112070083618
 CAMERA_DISTANCE = 4.0
 
 
@@ -66,7 +62,7 @@ def dnerf_like_scene(n: int, width: int, height: int, device: torch.device, seed
         "opacities": torch.empty(n).uniform_(0.1, 1.0, generator=generator),
         "colors": torch.rand(n, 3, generator=generator),
         "viewmat": viewmat,
-        "K": torch.tensor([[focal, 0.0, width / 2], [0.0, focal, height / 2], [0.0, 0.0, 1.0]]),
+        "K": centred_intrinsics(focal, width, height),
     }
     return {key: value.to(device) for key, value in scene.items()}
 
@@ -225,12 +221,12 @@ def run(args: argparse.Namespace) -> int:
                 inputs["means"], inputs["quats"], inputs["scales"], inputs["opacities"], inputs["colors"],
                 inputs["viewmat"], inputs["K"], width, height, backend=args.backend, tile_size=tile_size,
             )  # fmt: skip
-            info.update(backend=out.info["backend"], n_pairs=out.info.get("n_pairs"), tile=out.info.get("tile_size"))
+            info.update(backend=out.info["backend"], n_pairs=out.info["n_pairs"], tile=out.info["tile_size"])
             return out.rgb, out.alpha, out.depth
 
         timing = time_case(render, scene, device, repeats, warmup)
         record = {"backend": info["backend"], "device": device.type, "width": width, "height": height,
-                  "n_gaussians": n, "tile_size": info["tile"] or 16}  # fmt: skip
+                  "n_gaussians": n, "tile_size": info["tile"]}  # fmt: skip
         report(record | timing | {"n_tile_pairs": info["n_pairs"]})
         return timing
 

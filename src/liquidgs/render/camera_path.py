@@ -18,12 +18,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import torch
 from scipy.spatial.transform import Rotation, Slerp
 
 from liquidgs.atomic import write_json_atomic
+from liquidgs.cameras import Camera
 from liquidgs.errors import DataError
-from liquidgs.render.cameras import pinhole_intrinsics
 
 MAX_SIDE = 8192
 MAX_FRAMES = 100_000
@@ -33,19 +32,18 @@ _FLIP_YZ = np.diag([1.0, -1.0, -1.0, 1.0])
 
 @dataclass
 class PathCamera:
-    """One camera of a path: camera-to-world in OpenCV axes, as the rasteriser's cameras."""
+    """One camera of a path as the file holds it (camera-to-world, but in OpenCV axes), at a time.
+
+    Kept apart from `Camera` because a path interpolates position, rotation and field of view,
+    and its image size is the path's."""
 
     camera_to_world: np.ndarray  # float64 [4,4]
     fov: float  # vertical field of view, degrees
     time: float  # scene time in [0, 1]
 
-    def viewmat(self) -> torch.Tensor:
-        """World-to-camera [4,4] float32 (OpenCV axes), as `rasterize` takes it."""
-        return torch.from_numpy(np.linalg.inv(self.camera_to_world)).float()
-
-    def intrinsics(self, width: int, height: int) -> torch.Tensor:
-        """Pinhole K for an image of width x height, principal point at the centre."""
-        return pinhole_intrinsics(self.fov, width, height)
+    def camera(self, width: int, height: int) -> Camera:
+        """The pinhole camera of a width x height image, principal point at the centre."""
+        return Camera.from_camera_to_world(self.camera_to_world, math.radians(self.fov), width, height)
 
 
 @dataclass

@@ -13,11 +13,13 @@ import torch
 from torch import Tensor
 
 from liquidgs import native
+from liquidgs.cameras import view_centre
 from liquidgs.native import INT, INT64, POINTER, pointer
-from liquidgs.render.cameras import view_centre
+from liquidgs.render.contract import RasterOptions, RenderOutput
 from liquidgs.render.projection import Projection, project_gaussians
-from liquidgs.render.sh import num_sh_bases
 from liquidgs.render.tiles import TileBins, tile_boxes
+from liquidgs.render.torch_backend import TiledStages, render_tiled, view_colors
+from liquidgs.sh import num_sh_bases
 
 SOURCES = (Path(__file__).with_name("cpu_composite.cpp"), Path(__file__).with_name("cpu_project.cpp"))
 # Gradient row per Gaussian: means2d (2), conics (3), opacity (1), RGB + depth (4), |means2d| (2).
@@ -154,7 +156,7 @@ class _ViewColorsCPU(torch.autograd.Function):
 
 
 def view_colors_cpu(colors: Tensor, sh_degree: int | None, means: Tensor, viewmat: Tensor) -> Tensor | None:
-    """rasterize.view_colors in the kernel library, or None where the torch version must do it
+    """torch_backend.view_colors in the kernel library, or None where the torch version must do it
     (plain RGB, or a view matrix that needs a gradient)."""
     if sh_degree is None or viewmat.requires_grad or colors.shape[1] < num_sh_bases(sh_degree):
         return None
@@ -254,3 +256,22 @@ def composite_tiles_cpu(
         # A tile's pixels fill whole 8-float vectors.
         raise ValueError(f"the CPU kernel takes tile sizes 4, 8, ..., {MAX_TILE_SIZE}, got {bins.tile_size}")
     return _CompositeCPU.apply(means2d, conics, opacities, features, bins, width, height, absgrad)
+
+
+def _view_colors(colors: Tensor, sh_degree: int | None, means: Tensor, viewmat: Tensor) -> Tensor:
+    colours = view_colors_cpu(colors, sh_degree, means, viewmat)
+    return view_colors(colors, sh_degree, means, viewmat) if colours is None else colours
+
+
+def _composite(means2d, conics, opacities, features, bins, width, height, absgrad, chunk_elements):
+    # The kernel's memory is per tile and thread, so it has no use for the torch backend's chunk bound.
+    return composite_tiles_cpu(means2d, conics, opacities, features, bins, width, height, absgrad)
+
+
+CPU_STAGES = TiledStages(project_gaussians_cpu, _view_colors, bin_gaussians_cpu, _composite)
+
+
+def render(
+    means, quats, scales, opacities, colors, viewmat, K, width: int, height: int, options: RasterOptions
+) -> RenderOutput:
+    return render_tiled(CPU_STAGES, "cpu", means, quats, scales, opacities, colors, viewmat, K, width, height, options)

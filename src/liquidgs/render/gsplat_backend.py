@@ -21,8 +21,11 @@ import math
 import torch
 from torch import Tensor
 
-from liquidgs.render.cameras import view_centre
+from liquidgs.cameras import view_centre
+from liquidgs.render.contract import RasterOptions, RenderOutput, render_output
+from liquidgs.render.projection import Projection
 
+# gsplat's own tile size; rasterize's tile_size tunes the other backends only.
 GSPLAT_TILE_SIZE = 16
 _availability: dict[str, str | None] = {}
 
@@ -64,25 +67,10 @@ def unavailable_reason(means: Tensor) -> str | None:
     return _availability[key]
 
 
-def rasterize_gsplat(
-    means: Tensor,
-    quats: Tensor,
-    scales: Tensor,
-    opacities: Tensor,
-    colors: Tensor,
-    viewmat: Tensor,
-    K: Tensor,
-    width: int,
-    height: int,
-    *,
-    sh_degree: int | None,
-    background: Tensor,
-    near_plane: float,
-    far_plane: float,
-    eps2d: float,
-    absgrad: bool,
-):
-    """Render with gsplat's kernels; returns a RenderOutput like the torch backend's."""
+def render(
+    means, quats, scales, opacities, colors, viewmat, K, width: int, height: int, options: RasterOptions
+) -> RenderOutput:
+    """Render with gsplat's kernels (see the contract in render/contract.py)."""
     from gsplat import (
         fully_fused_projection,
         isect_offset_encode,
@@ -91,24 +79,23 @@ def rasterize_gsplat(
         spherical_harmonics,
     )
 
-    from liquidgs.render.rasterize import DEPTH_ALPHA_FLOOR, RenderOutput
-
     radii_batched, means2d_batched, depths_batched, conics_batched, _ = fully_fused_projection(
         means, None, quats, scales, viewmat[None], K[None], width, height,
-        eps2d=eps2d, near_plane=near_plane, far_plane=far_plane, packed=False, opacities=opacities,
+        eps2d=options.eps2d, near_plane=options.near_plane, far_plane=options.far_plane, packed=False,
+        opacities=opacities,
     )  # fmt: skip
     radii_xy, depths, conics = radii_batched[0], depths_batched[0], conics_batched[0]
     visible = (radii_xy > 0).all(dim=-1)
     means2d = means2d_batched[0]
     if means2d.requires_grad:
         means2d.retain_grad()
-    if sh_degree is None:
+    if options.sh_degree is None:
         rgb_colors = colors
     else:
-        sh_rgb = spherical_harmonics(sh_degree, means - view_centre(viewmat), colors, masks=visible)
+        sh_rgb = spherical_harmonics(options.sh_degree, means - view_centre(viewmat), colors, masks=visible)
         rgb_colors = torch.clamp_min(sh_rgb + 0.5, 0.0)
     features = torch.cat([rgb_colors, depths[:, None]], dim=1)
-    backgrounds = torch.cat([background, background.new_zeros(1)])[None]
+    backgrounds = torch.cat([options.background, options.background.new_zeros(1)])[None]
 
     tiles_x = math.ceil(width / GSPLAT_TILE_SIZE)
     tiles_y = math.ceil(height / GSPLAT_TILE_SIZE)
@@ -120,30 +107,17 @@ def rasterize_gsplat(
     isect_offsets = isect_offset_encode(isect_ids, 1, tiles_x, tiles_y).reshape(1, tiles_y, tiles_x)
     rendered, alphas = rasterize_to_pixels(
         means2d_for_kernel, conics_batched, features[None], opacities[None], width, height,
-        GSPLAT_TILE_SIZE, isect_offsets, flatten_ids, backgrounds=backgrounds, absgrad=absgrad,
+        GSPLAT_TILE_SIZE, isect_offsets, flatten_ids, backgrounds=backgrounds, absgrad=options.absgrad,
     )  # fmt: skip
-    if absgrad and means2d.requires_grad:
+    if options.absgrad and means2d.requires_grad:
         # The hook runs when means2d's gradient is formed, i.e. after the kernel's backward set it.
         def copy_absgrad(grad: Tensor) -> None:
             means2d.absgrad = means2d_for_kernel.absgrad[0]
 
         means2d.register_hook(copy_absgrad)
     alpha = alphas[0]
-    info = {
-        "means2d": means2d,
-        "radii": radii_xy.amax(dim=-1),
-        "radii_xy": radii_xy,
-        "visible": visible,
-        "depths": depths,
-        "conics": conics,
-        "width": width,
-        "height": height,
-        "n_cameras": 1,
-        "backend": "gsplat",
-    }
-    return RenderOutput(
-        rgb=rendered[0, ..., :3],
-        alpha=alpha,
-        depth=rendered[0, ..., 3:] / alpha.clamp_min(DEPTH_ALPHA_FLOOR),
-        info=info,
-    )
+    projection = Projection(means2d=means2d, conics=conics, depths=depths, radii_xy=radii_xy, visible=visible)
+    return render_output(
+        rendered[0, ..., :3], alpha, rendered[0, ..., 3:], projection,
+        width=width, height=height, backend="gsplat", tile_size=GSPLAT_TILE_SIZE, n_pairs=flatten_ids.numel(),
+    )  # fmt: skip

@@ -11,10 +11,8 @@ import torch
 from torch import Tensor
 from torch.utils.checkpoint import checkpoint
 
+from liquidgs.render.composite import MAX_ALPHA, MIN_TRANSMITTANCE
 from liquidgs.render.projection import ALPHA_THRESHOLD
-
-MAX_ALPHA = 0.999
-MIN_TRANSMITTANCE = 1e-4
 
 
 def _composite_pixels(

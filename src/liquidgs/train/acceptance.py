@@ -113,7 +113,7 @@ def measure(args: argparse.Namespace, cfg, run_dir: Path) -> dict:
         "torch_version": torch.__version__,
         "gsplat_version": _gsplat_version(),
         "scene": trainer.dataset.scene_name,
-        "resolution": [frame.width, frame.height],
+        "resolution": [frame.camera.width, frame.camera.height],
         "preset": cfg.preset,
         "field": cfg.field,
         "seed": cfg.seed,
@@ -136,7 +136,7 @@ def run(args: argparse.Namespace) -> int:
     dataset = load_dataset(DataConfig(path=args.data, downscale=args.downscale, cache_images=0))
     frame = dataset.test[0] if dataset.test else dataset.train[0]
     if args.dry_run:
-        print("\n".join(plan_lines(args, cfg, (frame.width, frame.height), len(dataset.test))))
+        print("\n".join(plan_lines(args, cfg, (frame.camera.width, frame.camera.height), len(dataset.test))))
         return 0
     if not torch.cuda.is_available():
         raise ConfigError("bench gpu needs a CUDA device (this torch sees none); --dry-run checks the plan anywhere")

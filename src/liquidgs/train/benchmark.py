@@ -97,7 +97,7 @@ def measure(args: argparse.Namespace, data: Path, run_dir: Path) -> dict:
     return {
         "benchmark": "train",
         "scene": DEFAULT_SYNTHETIC_SCENE if args.data is None else trainer.dataset.scene_name,
-        "resolution": [frame.width, frame.height],
+        "resolution": [frame.camera.width, frame.camera.height],
         "preset": args.preset,
         "field": args.field,
         "backend": _backend_used(trainer, frame),

@@ -15,6 +15,7 @@ import yaml
 
 from liquidgs import settings
 from liquidgs.atomic import write_text_atomic
+from liquidgs.data.dnerf import SCENE_BOUND
 from liquidgs.data.perturb import PerturbConfig
 from liquidgs.data.scene import DataConfig
 from liquidgs.errors import ConfigError
@@ -85,7 +86,7 @@ class TrainConfig:
     ssim_weight: float = 0.2
     init_points: int = 100_000
     """Random initial points in [-init_extent, init_extent]^3 (used when the data has no point cloud)."""
-    init_extent: float = 1.3
+    init_extent: float = SCENE_BOUND
     smooth_time: bool = False
     """Annealed smooth training (D-3DGS, real data): t + N(0,1) * scale * s(i) after warm-up."""
     smooth_time_steps: int = 20_000

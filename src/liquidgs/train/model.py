@@ -6,6 +6,7 @@ from dataclasses import dataclass
 
 import torch
 
+from liquidgs.cameras import Camera
 from liquidgs.gaussians.model import activate
 from liquidgs.render import RenderOutput, rasterize
 
@@ -50,10 +51,7 @@ def deform(
 
 def render_frame(
     gaussians: Deformed,
-    viewmat: torch.Tensor,
-    K: torch.Tensor,
-    width: int,
-    height: int,
+    camera: Camera,
     *,
     sh_degree: int,
     background: torch.Tensor,
@@ -67,10 +65,10 @@ def render_frame(
         gaussians.scales,
         gaussians.opacities,
         gaussians.colors,
-        viewmat.to(device),
-        K.to(device),
-        width,
-        height,
+        camera.viewmat.to(device),
+        camera.K.to(device),
+        camera.width,
+        camera.height,
         sh_degree=sh_degree,
         background=background.to(device),
         backend=backend,

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import torch
 
+from liquidgs.cameras import Camera
 from liquidgs.errors import LiquidGSError
 from liquidgs.fields import build_field
 from liquidgs.gaussians import PARAM_KEYS
@@ -47,21 +48,20 @@ class TrainedRun:
         with self.field.noise_on():
             return self.at_time(time)
 
-    def render(self, viewmat, K, width: int, height: int, time: float, background, noisy: bool = False):
-        """The scene at `time` from a camera; noisy=True draws one Monte-Carlo sample of the field."""
+    def render(self, camera: Camera, time: float, background, noisy: bool = False):
+        """The scene at `time` from `camera`; noisy=True draws one Monte-Carlo sample of the field."""
         gaussians = self.sample_at_time(time) if noisy else self.at_time(time)
         return render_frame(
-            gaussians, viewmat, K, width, height,
-            sh_degree=self.sh_degree, background=background, backend=self.config.backend,
-        )  # fmt: skip
+            gaussians, camera, sh_degree=self.sh_degree, background=background, backend=self.config.backend
+        )
 
     @torch.no_grad()
-    def monte_carlo(self, viewmat, K, width: int, height: int, time: float, background, samples: int):
+    def monte_carlo(self, camera: Camera, time: float, background, samples: int):
         """Per-pixel mean [H,W,3] and standard deviation (mean over RGB) [H,W] of `samples` noisy renders."""
-        total = torch.zeros(height, width, 3)
+        total = torch.zeros(camera.height, camera.width, 3)
         total_sq = torch.zeros_like(total)
         for _ in range(samples):
-            rgb = self.render(viewmat, K, width, height, time, background, noisy=True).rgb.cpu()
+            rgb = self.render(camera, time, background, noisy=True).rgb.cpu()
             total += rgb
             total_sq += rgb * rgb
         mean = total / samples

@@ -23,6 +23,7 @@ from liquidgs.data import SceneDataset, load_dataset, perturb_dataset, spread_ex
 from liquidgs.data.scene import MIN_CAMERA_EXTENT
 from liquidgs.errors import ConfigError, LiquidGSError
 from liquidgs.eval import LPIPS, LPIPSUnavailable, evaluate_views, ssim
+from liquidgs.eval.metrics import MIN_MSE, psnr_from_mse
 from liquidgs.fields import build_field
 from liquidgs.gaussians import PARAM_KEYS, init_from_points, init_random_box
 from liquidgs.train.config import TrainConfig, save_yaml
@@ -270,7 +271,7 @@ class Trainer:
         clock.mark("optimizer_step")
         with torch.no_grad():
             mse = ((out.rgb.detach().clamp(0, 1) - gt) ** 2).mean()
-            train_psnr = float(-10.0 * torch.log10(mse.clamp_min(1e-12)))
+            train_psnr = float(psnr_from_mse(mse.clamp_min(MIN_MSE)))
         self._guard_divergence(step, train_psnr)
         disturbance = self._scheduled_disturbance(step, sh_raised, n_before, report)
         if disturbance:
@@ -380,7 +381,7 @@ class Trainer:
     # ----------------------------------------------------------------- evaluation
     def _render(self, gaussians, frame, absgrad: bool = False):
         return render_frame(
-            gaussians, frame.viewmat, frame.K, frame.width, frame.height,
+            gaussians, frame.camera,
             sh_degree=self.state.sh_degree, background=self.background, backend=self.cfg.backend, absgrad=absgrad,
         )  # fmt: skip
 
@@ -470,7 +471,7 @@ class Trainer:
             "torch": torch.__version__,
             "lpips_backbone": cfg.eval.lpips_backbone,
             "lpips_normalize": cfg.eval.lpips_normalize,
-            "resolution": [self.dataset.train[0].width, self.dataset.train[0].height],
+            "resolution": [self.dataset.train[0].camera.width, self.dataset.train[0].camera.height],
             "perturb": cfg.perturb.settings(),
             "views": {"train": len(self.dataset.train), "test": len(self.dataset.test)},
         }

@@ -19,8 +19,8 @@ def benchmark_viewer(viewer: Viewer, frames: int = 30) -> dict:
     (fps from the mean time per frame; the median is less sensitive to a busy shared CPU)."""
     frame = next(iter(viewer.cameras.values()), None)
     if frame is not None:
-        c2w = np.linalg.inv(frame.viewmat.double().numpy())
-        fov = 2.0 * math.atan(0.5 * frame.height / float(frame.K[1, 1]))
+        c2w = frame.camera.camera_to_world()
+        fov = frame.camera.vertical_fov
     else:
         c2w = np.eye(4)
         c2w[:3, 3] = viewer.centre - np.array([0.0, 0.0, 3.0 * viewer.radius])

@@ -7,27 +7,17 @@ from __future__ import annotations
 
 import math
 import re
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from liquidgs.cameras import Camera
 from liquidgs.errors import LiquidGSError
 from liquidgs.gaussians import activate, read_ply
 from liquidgs.render import rasterize
 from liquidgs.train.run import TrainedRun, load_run
 from liquidgs.train.trainer import load_run_dataset
-
-
-@dataclass
-class Camera:
-    """A pinhole view in the rasteriser's conventions (world-to-camera, OpenCV axes)."""
-
-    viewmat: torch.Tensor  # [4,4]
-    K: torch.Tensor  # [3,3]
-    width: int
-    height: int
 
 
 class RunScene:
@@ -45,14 +35,12 @@ class RunScene:
 
     @torch.no_grad()
     def render(self, camera: Camera, time: float) -> torch.Tensor:
-        return self.run.render(camera.viewmat, camera.K, camera.width, camera.height, time, self.background).rgb
+        return self.run.render(camera, time, self.background).rgb
 
     @torch.no_grad()
     def uncertainty(self, camera: Camera, time: float, samples: int) -> torch.Tensor:
         """Per-pixel Monte-Carlo standard deviation [H,W] (the estimate `liquidgs render` writes)."""
-        _, std = self.run.monte_carlo(
-            camera.viewmat, camera.K, camera.width, camera.height, time, self.background, samples
-        )
+        _, std = self.run.monte_carlo(camera, time, self.background, samples)
         return std
 
 
@@ -119,4 +107,3 @@ def scene_centre_and_radius(points: torch.Tensor) -> tuple[np.ndarray, float]:
     centre = points.median(dim=0).values
     radius = float(torch.quantile((points - centre).norm(dim=1), 0.9))
     return centre.double().numpy(), max(radius, 1e-3)
-

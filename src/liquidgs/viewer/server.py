@@ -23,11 +23,11 @@ import viser.transforms as vtf
 from matplotlib import colormaps
 from PIL import Image
 
+from liquidgs.cameras import Camera
 from liquidgs.data.scene import Frame
 from liquidgs.media import labelled, to_uint8
 from liquidgs.render.camera_path import PathCamera, write_camera_path
-from liquidgs.render.cameras import pinhole_intrinsics
-from liquidgs.viewer.scenes import Camera, PlyScene, RunScene, scene_centre_and_radius
+from liquidgs.viewer.scenes import PlyScene, RunScene, scene_centre_and_radius
 
 REST_SECONDS = 0.3
 # Frames closer than this in time count as a stream (playing, dragging): its rate is shown.
@@ -53,8 +53,7 @@ def camera_to_world(wxyz, position) -> np.ndarray:
 
 def free_camera(c2w: np.ndarray, fov: float, width: int, height: int) -> Camera:
     """The browser's camera (vertical fov in radians) as a pinhole of width x height."""
-    K = pinhole_intrinsics(math.degrees(fov), width, height)
-    return Camera(torch.from_numpy(np.linalg.inv(c2w)).float(), K, width, height)
+    return Camera.from_camera_to_world(c2w, fov, width, height)
 
 
 def letterbox(frame: Frame, width: int, height: int) -> tuple[Camera, tuple[int, int, int, int]]:
@@ -63,14 +62,15 @@ def letterbox(frame: Frame, width: int, height: int) -> tuple[Camera, tuple[int,
     Inside the box the view is the dataset camera's own (its intrinsics, scaled), so it can be
     compared with `liquidgs render`'s image of that camera and overlaid with the ground truth.
     """
-    scale = min(width / frame.width, height / frame.height)
-    box_w, box_h = round(frame.width * scale), round(frame.height * scale)
+    camera = frame.camera
+    scale = min(width / camera.width, height / camera.height)
+    box_w, box_h = round(camera.width * scale), round(camera.height * scale)
     x0, y0 = (width - box_w) // 2, (height - box_h) // 2
-    K = frame.K.clone().float()
+    K = camera.K.clone().float()
     K[:2] *= scale
     K[0, 2] += x0
     K[1, 2] += y0
-    return Camera(frame.viewmat.float(), K, width, height), (x0, y0, box_w, box_h)
+    return Camera(camera.viewmat.float(), K, width, height), (x0, y0, box_w, box_h)
 
 
 def heat_map(std: torch.Tensor) -> tuple[np.ndarray, float]:
@@ -124,7 +124,7 @@ class Viewer:
         self._render_threads: list[threading.Thread] = []
         self.cameras = self._dataset_cameras()
         if self.runs:
-            up = -torch.stack([f.viewmat[1, :3] for f in self.runs[0].dataset.train]).mean(0)
+            up = -torch.stack([f.camera.viewmat[1, :3] for f in self.runs[0].dataset.train]).mean(0)
             self.up = (up / up.norm()).double().numpy()
             default_path = self.runs[0].run.run_dir / "camera_paths" / "camera_path.json"
         else:
@@ -221,12 +221,13 @@ class Viewer:
 
     def jump(self, client: viser.ClientHandle, frame: Frame) -> None:
         """Put the client's camera at a dataset camera and the time at its frame time."""
-        c2w = np.linalg.inv(frame.viewmat.double().numpy())
+        camera = frame.camera
+        c2w = camera.camera_to_world()
         distance = max(float(np.dot(self.centre - c2w[:3, 3], c2w[:3, 2])), 1e-3)
         ready = self._camera_ready.get(client.client_id)
         aspect = client.camera.aspect if ready is not None and ready.is_set() else 1.0
         # The vertical field of view that shows the whole image in a canvas of this aspect.
-        half_height = 0.5 * max(frame.height, frame.width / aspect) / float(frame.K[1, 1])
+        half_height = 0.5 * max(camera.height, camera.width / aspect) / float(camera.K[1, 1])
         self.play.value = False
         self._snapped[client.client_id] = (frame, c2w)
         self._set_camera(client, c2w, c2w[:3, 3] + distance * c2w[:3, 2], 2.0 * math.atan(half_height))

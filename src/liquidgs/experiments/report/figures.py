@@ -97,9 +97,7 @@ def _by_seed(runs: list[RunRecord], method: Method, scene: str) -> dict[int, Run
     return {r.entry.seed: r for r in runs if r.method == method and r.entry.scene == scene}
 
 
-def qualitative_figure(
-    scores: DatasetScores, path: Path, device: str
-) -> tuple[list[QualitativeRow], list[str]]:
+def qualitative_figure(scores: DatasetScores, path: Path, device: str) -> tuple[list[QualitativeRow], list[str]]:
     """Write the figure; returns its rows (top to bottom) and the scenes skipped, each with its reason."""
     pair = qualitative_pair(scores)
     if pair is None:
@@ -150,7 +148,7 @@ def _scene_row(scene: str, gain: float, seed: int, mlp: RunRecord, sde: RunRecor
     renders = []
     for record in (mlp, sde):
         run = load_run(record.folder, device)
-        rendered = run.render(frame.viewmat, frame.K, frame.width, frame.height, frame.time, background)
+        rendered = run.render(frame.camera, frame.time, background)
         renders.append(to_uint8(rendered.rgb))
     errors = [np.abs(r.astype(np.float64) - truth).mean(axis=-1) / 255.0 for r in renders]
     side = max(1, int(min(truth.shape[:2]) * CROP_FRACTION))
@@ -173,4 +171,3 @@ def mean_psnr_curve(scores: DatasetScores, methods: list[Method]) -> list[tuple[
         if mean is not None:
             points.append((method.lambda_, mean.mean, mean.std))
     return points
-

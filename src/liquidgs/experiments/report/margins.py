@@ -82,7 +82,7 @@ def scene_regions(run: RunRecord, synthetic: str | None) -> SceneRegions:
     dataset = load_run_dataset(run.config)
     frames = sorted(dataset.test, key=lambda f: f.time)
     masks: dict[str, list[np.ndarray] | None] = {
-        "whole": [np.ones((f.height, f.width), dtype=bool) for f in frames],
+        "whole": [np.ones((f.camera.height, f.camera.width), dtype=bool) for f in frames],
         "foreground": [foreground_region(f) for f in frames],
         "moving": None,
     }
@@ -97,10 +97,7 @@ def run_region_psnrs(run: RunRecord, regions: SceneRegions, device: str) -> tupl
     """Region -> PSNR of the run's final checkpoint, and its whole-image PSNR (mean over views) as
     rendered here, to hold against results.json."""
     trained = load_run(run.folder, device)
-    renders = [
-        to_uint8(trained.render(f.viewmat, f.K, f.width, f.height, f.time, regions.background).rgb)
-        for f in regions.frames
-    ]
+    renders = [to_uint8(trained.render(f.camera, f.time, regions.background).rgb) for f in regions.frames]
     scores = {
         region: None if masks is None else region_psnr(renders, regions.truths, masks)
         for region, masks in regions.masks.items()

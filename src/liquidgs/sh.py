@@ -1,4 +1,7 @@
-"""Real spherical harmonics up to degree 3, in the INRIA 3DGS / gsplat basis order and signs."""
+"""Real spherical harmonics up to degree 3, in the INRIA 3DGS / gsplat basis order and signs.
+
+Shared by the scene model (gaussians/: colour <-> degree-0 coefficient) and the rasteriser (render/).
+"""
 
 from __future__ import annotations
 
@@ -7,7 +10,8 @@ from torch import Tensor
 
 MAX_SH_DEGREE = 3
 
-_C0 = 0.28209479177387814
+SH_C0 = 0.28209479177387814
+"""The degree-0 basis function, a constant: colour = SH_C0 * coefficient (+ 0.5 in 3DGS)."""
 _C1 = 0.4886025119029199
 _C2 = (1.0925484305920792, -1.0925484305920792, 0.31539156525252005, -1.0925484305920792, 0.5462742152960396)
 _C3 = (
@@ -31,7 +35,7 @@ def eval_sh_bases(sh_degree: int, dirs: Tensor) -> Tensor:
     if not 0 <= sh_degree <= MAX_SH_DEGREE:
         raise ValueError(f"sh_degree must be in 0..{MAX_SH_DEGREE}, got {sh_degree}")
     x, y, z = dirs.unbind(-1)
-    bases = [torch.full_like(x, _C0)]
+    bases = [torch.full_like(x, SH_C0)]
     if sh_degree >= 1:
         bases += [-_C1 * y, _C1 * z, -_C1 * x]
     if sh_degree >= 2:
