@@ -88,7 +88,7 @@ CASES = {
     # eval / render / export
     "eval run missing": (["eval", "--run", "{missing}"], "does not exist"),
     "eval run is a file": (["eval", "--run", "{file}"], "is a file, not a run folder"),
-    "eval bad split": run_case("eval", "--split", "nope", message="invalid choice"),
+    "eval bad split": run_case("eval", "--split", "nope", message="--split: unknown split 'nope' (choose from"),
     "eval bad device": run_case("eval", "--device", "tpu9", message="unknown device"),
     "render sweep zero": run_case("render", "--sweep-frames", "0", message="--sweep-frames must be between 1"),
     "render orbit zero": run_case("render", "--orbit-frames", "0", message="--orbit-frames"),
@@ -118,7 +118,7 @@ CASES = {
     "check a file": (["data", "check", "{file}"], "is a file, not a dataset folder"),
     "check missing": (["data", "check", "{missing}"], "dataset folder not found"),
     "check downscale zero": (["data", "check", "{scene}", "--downscale", "0"], "downscale"),
-    "check bad format": (["data", "check", "{scene}", "--format", "ply"], "invalid choice"),
+    "check bad format": (["data", "check", "{scene}", "--format", "ply"], "--format: unknown format 'ply'"),
     # bench
     "bench raster bad case": (["bench", "raster", "--cases", "big"], "WIDTHxHEIGHT/N"),
     "bench raster zero case": (["bench", "raster", "--cases", "0x0/0"], "between 1 and"),

@@ -82,7 +82,7 @@ def test_flags_round_trip_through_to_flags():
     [
         (["--iterations", "lots"], "--iterations: expected an integer, got 'lots'"),
         (["--bogus", "1"], "unrecognized arguments: --bogus 1"),
-        (["--field", "nerf"], "unknown field 'nerf' (choose from static, mlp, cfc, sde)"),
+        (["--field", "nerf"], "--field: unknown field 'nerf' (choose from static, mlp, cfc, sde)"),
         (["--iterations"], "argument --iterations: expected one argument"),
         (["--iter", "3"], "unrecognized arguments: --iter 3"),  # no abbreviations: a typo never lands elsewhere
     ],

@@ -279,7 +279,8 @@ def _parse_value(text: str, hint, flag: str):
             if str(choice) == text:
                 return choice
         choices = ", ".join(map(str, typing.get_args(hint)))
-        raise ConfigError(f"unknown {flag.lstrip('-').replace('-', ' ')} '{text}' (choose from {choices})")
+        name = flag.rsplit(".", 1)[-1].lstrip("-").replace("-", " ")
+        raise ConfigError(f"{flag}: unknown {name} '{text}' (choose from {choices})")
     try:
         if hint is int:
             return int(text)
