@@ -19,7 +19,7 @@ from liquidgs.data import generate_synthetic
 from liquidgs.errors import ConfigError, LiquidGSError
 from liquidgs.experiments.spec import ExperimentSpec, Grid, SyntheticScene, Variant
 from liquidgs.train.config import TrainConfig, config_hash, preset_config, validate
-from liquidgs.train.trainer import RESULTS
+from liquidgs.train.run_folder import RESULTS
 
 MANIFEST = "experiment.json"
 MANIFEST_FORMAT = "liquidgs-experiment-1"

@@ -17,6 +17,7 @@ import yaml
 
 from liquidgs.atomic import write_text_atomic
 from liquidgs.data.perturb import PerturbConfig
+from liquidgs.data.scene import DataConfig
 from liquidgs.errors import ConfigError
 from liquidgs.fields import FieldConfig, FieldOptions
 from liquidgs.fields.config import DEFAULT_SDE_LAMBDA
@@ -306,6 +307,34 @@ def identity(cfg: TrainConfig) -> dict:
 
 def config_hash(cfg: TrainConfig) -> str:
     return hashlib.sha256(json.dumps(identity(cfg), sort_keys=True).encode()).hexdigest()[:10]
+
+
+def differing_settings(a: TrainConfig, b: TrainConfig) -> list[str]:
+    """The settings of the identity, as dotted names, in which two configurations differ."""
+
+    def flatten(d: dict, prefix: str = "") -> dict:
+        flat = {}
+        for key, value in d.items():
+            if isinstance(value, dict):
+                flat.update(flatten(value, f"{prefix}{key}."))
+            else:
+                flat[f"{prefix}{key}"] = value
+        return flat
+
+    fa, fb = flatten(identity(a)), flatten(identity(b))
+    return sorted(k for k in fa.keys() | fb.keys() if fa.get(k) != fb.get(k))
+
+
+def data_config(cfg: TrainConfig) -> DataConfig:
+    """The run's data settings, as the data loader takes them."""
+    return DataConfig(
+        path=cfg.data,
+        format=cfg.data_format,
+        downscale=cfg.downscale,
+        background=cfg.background,
+        split=cfg.split,
+        val_as_test=cfg.val_as_test,
+    )
 
 
 def save_yaml(cfg: TrainConfig, path: Path) -> None:

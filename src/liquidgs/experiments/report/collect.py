@@ -16,7 +16,7 @@ from pathlib import Path
 from liquidgs.errors import LiquidGSError
 from liquidgs.experiments.plan import Experiment, RunEntry, read_manifest
 from liquidgs.train.config import FIELDS, TrainConfig, load_yaml
-from liquidgs.train.trainer import CONFIG, PER_VIEW, RESULTS
+from liquidgs.train.run_folder import CONFIG, PER_VIEW, RESULTS
 
 EVALUATIONS = ("final", "best_of")
 SCORE_KEYS = ("psnr", "ssim")

@@ -31,8 +31,8 @@ from liquidgs.experiments.report.stress import is_paper_run
 from liquidgs.experiments.report.tables import PlainTable
 from liquidgs.experiments.spec import SyntheticScene
 from liquidgs.media import to_uint8
-from liquidgs.train.run import load_run
-from liquidgs.train.trainer import data_config, load_run_dataset
+from liquidgs.train.config import data_config
+from liquidgs.train.run import load_run, load_run_dataset
 
 BASELINE = "static"
 REGIONS = ("whole", "foreground", "moving")
