@@ -25,6 +25,7 @@ from liquidgs.train.run_folder import (
     RESULTS_FORMAT,
     RunResults,
     read_results,
+    run_directory_state,
     run_folder_lock,
     write_results,
     writer_pid,
@@ -371,3 +372,22 @@ def test_readers_do_not_import_the_training_loop():
     env = {**os.environ, "PYTHONPATH": str(SRC)}
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True)
     assert result.stdout.strip() == "False"
+
+
+def test_a_folder_is_in_one_of_five_states(tmp_path):
+    folder = tmp_path / "run"
+    assert run_directory_state(folder) == "empty"
+    folder.mkdir()
+    (folder / LOCK_NAME).write_text("12345\n")
+    (folder / ".checkpoint.ab12.tmp.pt").write_bytes(b"half")
+    assert run_directory_state(folder) == "empty"  # a writer killed before it wrote a run file
+    (folder / "notes.txt").write_text("mine")
+    assert run_directory_state(folder) == "foreign"
+    (folder / "notes.txt").unlink()
+    (folder / "config.yml").write_text("field: mlp\n")
+    assert run_directory_state(folder) == "configured"
+    (folder / "checkpoint.pt").write_bytes(b"weights")
+    assert run_directory_state(folder) == "unfinished"
+    (folder / "results.json").write_text("{}")
+    assert run_directory_state(folder) == "finished"
+    assert run_directory_state(folder / "config.yml") == "foreign"  # a file where the folder should be

@@ -70,9 +70,7 @@ class RunResults:
         """The record in `raw` (results.json's content); anything else is one error naming `path`."""
         if not isinstance(raw, dict):
             raise LiquidGSError(f"{path}: corrupt results (not a JSON object)")
-        version = raw.get("format", RESULTS_FORMAT)
-        if version != RESULTS_FORMAT:
-            raise LiquidGSError(f"{path}: results format {version!r} is not one this liquidgs reads ({RESULTS_FORMAT})")
+        check_results_format(raw, path)
         types = typing.get_type_hints(cls)
         names = {_json_key(f.name): f.name for f in dataclasses.fields(cls)}
         unknown = sorted(raw.keys() - names.keys())
@@ -96,6 +94,13 @@ _JSON_KINDS = {
     dict: "an object",
     list: "a list",
 }
+
+
+def check_results_format(raw: dict, path: Path) -> None:
+    """Refuse results of a format this version does not read (none recorded: the first)."""
+    version = raw.get("format", RESULTS_FORMAT)
+    if version != RESULTS_FORMAT:
+        raise LiquidGSError(f"{path}: results format {version!r} is not one this liquidgs reads ({RESULTS_FORMAT})")
 
 
 def _json_key(name: str) -> str:
