@@ -358,6 +358,9 @@ def test_a_corrupt_results_file_is_one_line_error_naming_it(hand_built):
     path.write_text(json.dumps({**fake_results(30, 0.9, 0.1), "final": {"psnr": "high", "ssim": 0.9}}))
     with pytest.raises(LiquidGSError, match=r"field 'final.psnr'"):
         write_report(hand_built)
+    path.write_text(json.dumps({**fake_results(30, 0.9, 0.1), "format": "liquidgs-results-9"}))
+    with pytest.raises(LiquidGSError, match=r"results format 'liquidgs-results-9' is not one this liquidgs reads"):
+        write_report(hand_built)
 
 
 def test_unknown_evaluation_is_refused(hand_built):

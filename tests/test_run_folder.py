@@ -18,7 +18,18 @@ import yaml
 from liquidgs.cli import main as cli
 from liquidgs.commands.train import resolve_config, train
 from liquidgs.data import generate_synthetic
-from liquidgs.train.runlock import run_folder_lock, writer_pid
+from liquidgs.errors import LiquidGSError
+from liquidgs.train.run_folder import (
+    CHECKPOINT_FORMAT,
+    LOCK_NAME,
+    RESULTS_FORMAT,
+    RunResults,
+    read_results,
+    run_directory_state,
+    run_folder_lock,
+    write_results,
+    writer_pid,
+)
 from liquidgs.train.strategy import D3DGSStrategy, DensifyConfig
 from liquidgs.train.trainer import Trainer
 
@@ -43,7 +54,7 @@ def _one_thread(one_torch_thread):
     yield
 
 
-def run_train(args: list[str]) -> dict:
+def run_train(args: list[str]) -> RunResults:
     cfg, run_dir = resolve_config(args)
     return train(cfg, run_dir)
 
@@ -80,7 +91,7 @@ def test_a_second_writer_is_refused_with_the_folder_and_the_pid(scene, tmp_path,
     holder = subprocess.Popen(
         [sys.executable, "-c", textwrap.dedent(f"""
             import sys, time
-            from liquidgs.train.runlock import run_folder_lock
+            from liquidgs.train.run_folder import run_folder_lock
             with run_folder_lock({str(out)!r}):
                 print("held", flush=True)
                 time.sleep(60)
@@ -140,7 +151,7 @@ def test_a_crafted_checkpoint_does_not_execute(scene, tmp_path, capsys, monkeypa
     out = tmp_path / "run"
     interrupt_at(15, ["--data", str(scene), "--out", str(out), *FLAGS], monkeypatch)
     marker = tmp_path / "pwned"
-    torch.save({"format": "liquidgs-checkpoint-1", "params": _Payload(marker)}, out / "checkpoint.pt")
+    torch.save({"format": CHECKPOINT_FORMAT, "params": _Payload(marker)}, out / "checkpoint.pt")
     capsys.readouterr()
     for command in (["eval", "--run", str(out)], ["train", "--out", str(out), "--resume"]):
         assert cli(command) == 2
@@ -216,12 +227,12 @@ def test_a_full_disk_during_a_checkpoint_says_so_and_keeps_the_last_one(scene, t
 
 
 def test_read_only_file_system_is_one_line(scene, tmp_path, capsys, monkeypatch):
-    import liquidgs.train.runlock as runlock
+    import liquidgs.train.run_folder.lock as lock
 
     def read_only(*args, **kwargs):
-        raise OSError(errno.EROFS, "Read-only file system", str(tmp_path / "run" / runlock.LOCK_NAME))
+        raise OSError(errno.EROFS, "Read-only file system", str(tmp_path / "run" / LOCK_NAME))
 
-    monkeypatch.setattr(runlock.os, "open", read_only)
+    monkeypatch.setattr(lock.os, "open", read_only)
     assert cli(["train", "--data", str(scene), "--out", str(tmp_path / "run"), *FLAGS]) == 2
     assert "Read-only file system" in one_line_error(capsys)
     assert not (tmp_path / "run").exists()
@@ -268,7 +279,7 @@ def test_a_folder_with_only_a_lock_and_temporaries_counts_as_empty(scene, tmp_pa
     (out / ".liquidgs.lock").write_text("12345\n")  # a writer killed before it wrote anything
     (out / ".config.abcd.tmp.yml").write_text("data: x")
     results = run_train(["--data", str(scene), "--out", str(out), *FLAGS])
-    assert results["final"]["iteration"] == 30 and not (out / ".config.abcd.tmp.yml").exists()
+    assert results.final["iteration"] == 30 and not (out / ".config.abcd.tmp.yml").exists()
 
 
 # ----------------------------------------------------------------- 7. unfinished runs are labelled
@@ -303,3 +314,80 @@ def test_tensorboard_shows_each_step_once_after_a_resume(scene, tmp_path, monkey
     run_train(["--data", str(scene), "--out", str(resumed), "--resume", *FLAGS, "--checkpoint-every", "15"])
     for tag in ("train/loss", "test/psnr"):
         assert scalar_steps(resumed, tag) == scalar_steps(whole, tag), tag
+
+
+# ----------------------------------------------------------------- 9. the records' formats
+RESULTS_BEFORE_FORMAT = Path(__file__).parent / "data" / "results_before_format.json"
+"""results.json of a 10-iteration sde run with a time jitter, written by the code before results.json
+recorded its format (commit 52e35db)."""
+
+
+def test_results_written_before_the_format_was_recorded_still_read(tmp_path):
+    raw = json.loads(RESULTS_BEFORE_FORMAT.read_text())
+    assert "format" not in raw
+    (tmp_path / "results.json").write_text(RESULTS_BEFORE_FORMAT.read_text())
+    results = read_results(tmp_path)
+    assert results.format == RESULTS_FORMAT and results.lambda_ == 0.05 and results.perturb == {"time_jitter": 0.03}
+    assert results.final["iteration"] == 10 and results.views == {"train": 6, "test": 1}
+    # Written again, it holds exactly the same keys, in the same order, plus the format first.
+    assert list(results.to_json().items()) == [("format", RESULTS_FORMAT), *raw.items()]
+    write_results(tmp_path, results)
+    assert read_results(tmp_path) == results
+
+
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        (lambda raw: [raw], "corrupt results (not a JSON object)"),
+        (lambda raw: {**raw, "format": "liquidgs-results-9"}, "results format 'liquidgs-results-9' is not one"),
+        (lambda raw: {k: v for k, v in raw.items() if k != "views"}, "field 'views' is missing"),
+        (lambda raw: {**raw, "seed": "0"}, "field 'seed' is not an integer"),
+        (lambda raw: {**raw, "lpips_normalize": 1}, "field 'lpips_normalize' is not true or false"),
+        (lambda raw: {**raw, "num_gaussians": True}, "field 'num_gaussians' is not an integer"),
+        (lambda raw: {**raw, "fps": 60}, None),  # a whole number is a float
+        (lambda raw: {**raw, "psnr": 30.0}, "field 'psnr' is not part of liquidgs-results-1"),
+    ],
+)
+def test_a_results_file_that_does_not_fit_its_format_is_one_error_naming_it(tmp_path, change, message):
+    path = tmp_path / "results.json"
+    path.write_text(json.dumps(change(json.loads(RESULTS_BEFORE_FORMAT.read_text()))))
+    if message is None:
+        assert read_results(tmp_path).fps == 60
+        return
+    with pytest.raises(LiquidGSError) as caught:
+        read_results(tmp_path)
+    assert str(caught.value).startswith(f"{path}: ") and message in str(caught.value)
+    path.write_bytes(b"\xff")
+    with pytest.raises(LiquidGSError, match="results.json: unreadable"):
+        read_results(tmp_path)
+
+
+def test_readers_do_not_import_the_training_loop():
+    readers = [
+        "liquidgs.commands.evaluate", "liquidgs.commands.render", "liquidgs.commands.export",
+        "liquidgs.commands.view", "liquidgs.commands.experiment", "liquidgs.viewer.scenes",
+        "liquidgs.experiments.report", "liquidgs.experiments.runner", "liquidgs.train.run",
+    ]  # fmt: skip
+    code = f"import sys; [__import__(m) for m in {readers!r}]; print('liquidgs.train.trainer' in sys.modules)"
+    env = {**os.environ, "PYTHONPATH": str(SRC)}
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True)
+    assert result.stdout.strip() == "False"
+
+
+def test_a_folder_is_in_one_of_five_states(tmp_path):
+    folder = tmp_path / "run"
+    assert run_directory_state(folder) == "empty"
+    folder.mkdir()
+    (folder / LOCK_NAME).write_text("12345\n")
+    (folder / ".checkpoint.ab12.tmp.pt").write_bytes(b"half")
+    assert run_directory_state(folder) == "empty"  # a writer killed before it wrote a run file
+    (folder / "notes.txt").write_text("mine")
+    assert run_directory_state(folder) == "foreign"
+    (folder / "notes.txt").unlink()
+    (folder / "config.yml").write_text("field: mlp\n")
+    assert run_directory_state(folder) == "configured"
+    (folder / "checkpoint.pt").write_bytes(b"weights")
+    assert run_directory_state(folder) == "unfinished"
+    (folder / "results.json").write_text("{}")
+    assert run_directory_state(folder) == "finished"
+    assert run_directory_state(folder / "config.yml") == "foreign"  # a file where the folder should be

@@ -16,6 +16,7 @@ from liquidgs.data import generate_synthetic, synthetic
 from liquidgs.data.synthetic import Primitive
 from liquidgs.errors import ConfigError
 from liquidgs.train.config import config_hash, identity, legacy_identity, load_yaml, preset_config, save_yaml
+from liquidgs.train.run_folder import RESULTS_FORMAT, RunResults
 from liquidgs.train.trainer import Trainer, TrainingDiverged
 from shared_data import optional_lpips_dir
 
@@ -61,7 +62,7 @@ def lpips_weights(monkeypatch):
         monkeypatch.setenv("LIQUIDGS_LPIPS_WEIGHTS", str(LPIPS_DIR))
 
 
-def run_train(args: list[str]) -> dict:
+def run_train(args: list[str]) -> RunResults:
     cfg, run_dir = resolve_config(args)
     return train(cfg, run_dir)
 
@@ -89,7 +90,7 @@ def test_each_field_trains_and_writes_a_complete_run(small_scene, tmp_path, fiel
         assert (out / name).is_file(), name
     assert list((out / "tensorboard").iterdir()), "TensorBoard events expected"
     on_disk = json.loads((out / "results.json").read_text())
-    assert on_disk == json.loads(json.dumps(results))
+    assert on_disk == json.loads(json.dumps(results.to_json())) and on_disk["format"] == RESULTS_FORMAT
     assert on_disk["final"]["iteration"] == 40 and on_disk["evaluated_at"] == [20, 40]
     assert on_disk["best_of"]["iteration"] in (20, 40) and "model selection" in on_disk["best_of"]["note"]
     assert on_disk["final"]["psnr"] > 8.0 and on_disk["fps"] > 0
@@ -180,7 +181,7 @@ def test_opacity_reset_that_drops_psnr_by_more_than_10_db_is_not_a_divergence(gl
     before = sum(psnrs[130:150]) / 20  # the 20 steps before the reset at 150
     assert min(psnrs[150:160]) < before - 10, psnrs[140:170]  # the reset drops PSNR by more than 10 dB
     assert sum(psnrs[-20:]) / 20 > before - 3, psnrs[-20:]  # ... and training recovers
-    assert results["final"]["iteration"] == 260
+    assert results.final["iteration"] == 260
 
 
 def test_field_learning_rate_100x_too_high_is_still_caught(globe_scene, tmp_path, capsys):
@@ -354,7 +355,7 @@ def test_real_data_path_trains_from_the_point_cloud_with_smooth_time(small_scene
     assert len(noises) == 5 and all(abs(n) < 0.1 for n in noises)
     assert trainer.time_noise(cfg.warmup - 1) == 0.0  # no smoothing during warm-up
     results = train(cfg, run_dir)
-    assert results["final"]["psnr"] > 8.0 and (out / "results.json").is_file()
+    assert results.final["psnr"] > 8.0 and (out / "results.json").is_file()
 
 
 @pytest.mark.skipif(torch.cuda.is_available(), reason="checks the messages of a machine without CUDA")

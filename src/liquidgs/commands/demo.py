@@ -13,7 +13,6 @@ stopped.
 from __future__ import annotations
 
 import dataclasses
-import json
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -34,8 +33,8 @@ from liquidgs.fields.config import FIELD_LABELS, FIELD_NAMES
 from liquidgs.media import labelled, to_uint8, write_png, write_video
 from liquidgs.settings import parse_flags, to_dict
 from liquidgs.train.config import stretched_schedule
-from liquidgs.train.run import TrainedRun, load_run
-from liquidgs.train.trainer import load_run_dataset
+from liquidgs.train.run import TrainedRun, load_run, load_run_dataset
+from liquidgs.train.run_folder import read_results
 
 FRAMES = 80
 """Frames of the demo scene (train, val and test interleaved in time)."""
@@ -138,7 +137,7 @@ def moving_region_psnr(args: DemoArgs, loaded: dict[str, TrainedRun], frames, ba
 
 def write_report(args: DemoArgs, runs: dict[str, Path], data_path: Path) -> Path:
     loaded = {name: load_run(path, args.device) for name, path in runs.items()}
-    results = {name: json.loads((path / "results.json").read_text()) for name, path in runs.items()}
+    results = {name: read_results(path) for name, path in runs.items()}
     dataset = load_run_dataset(loaded["mlp"].config)
     frames = sorted(dataset.test, key=lambda f: f.time)
     background = torch.tensor(dataset.background, dtype=torch.float32)
@@ -170,7 +169,7 @@ def write_report(args: DemoArgs, runs: dict[str, Path], data_path: Path) -> Path
     def fmt(value, digits):
         return "n/a" if value is None else f"{value:.{digits}f}"
 
-    final_mlp = results["mlp"]["final"]
+    final_mlp = results["mlp"].final
     if final_mlp.get("lpips") is None:
         lpips_desc = final_mlp["lpips_unavailable"]
     else:
@@ -186,20 +185,20 @@ def write_report(args: DemoArgs, runs: dict[str, Path], data_path: Path) -> Path
         "",
         f"Scene: built-in synthetic `{args.scene}` at {frame.camera.width}x{frame.camera.height}, "
         f"{len(dataset.train)} train / {len(dataset.test)} test frames (data: `{data_path}`).",
-        f"Preset `tiny` stretched to {results['mlp']['iterations']} iterations (learning-rate decays over all of "
+        f"Preset `tiny` stretched to {results['mlp'].iterations} iterations (learning-rate decays over all of "
         f"them, densification until 3/4 with a gradient threshold of {DENSIFY_GRAD_THRESHOLD}, opacity reset every "
         f"2/5), seed {args.seed}, device "
-        f"{results['mlp']['device']}. Scores are the **final** evaluation on the test split "
+        f"{results['mlp'].device}. Scores are the **final** evaluation on the test split "
         "(8-bit quantised renders); best-of numbers are in each run's results.json.",
         "",
         "| field | PSNR | moving-region PSNR | SSIM | LPIPS | params | FPS | train time (s) | Gaussians |",
         "|---|---|---|---|---|---|---|---|---|",
     ]
     for name, res in results.items():
-        final = res["final"]
+        final = res.final
         scores = (f"{fmt(final['psnr'], 2)} | {fmt(moving[name], 2)} | {fmt(final['ssim'], 4)} | "
                   f"{fmt(final.get('lpips'), 4)}")  # fmt: skip
-        cost = f"{res['field_parameters']:,} | {res['fps']:.1f} | {res['train_seconds']:.0f} | {res['num_gaussians']:,}"
+        cost = f"{res.field_parameters:,} | {res.fps:.1f} | {res.train_seconds:.0f} | {res.num_gaussians:,}"
         lines.append(f"| {FIELD_LABELS[name]} | {scores} | {cost} |")
     lines += [
         "",

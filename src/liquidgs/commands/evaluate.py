@@ -18,8 +18,8 @@ from liquidgs.atomic import write_json_atomic
 from liquidgs.errors import ConfigError
 from liquidgs.eval import LPIPS, LPIPSUnavailable, describe_lpips, evaluate_views
 from liquidgs.settings import parse_flags
-from liquidgs.train.run import load_run
-from liquidgs.train.trainer import load_run_dataset
+from liquidgs.train.run import load_run, load_run_dataset
+from liquidgs.train.run_folder import EVAL, EVAL_PER_VIEW, write_per_view
 
 
 @dataclass
@@ -76,8 +76,8 @@ def evaluate_run(args: EvalArgs) -> dict:
         "scene": dataset.scene_name,
         **summary,
     }
-    write_json_atomic(args.run / "eval.json", record)
-    write_json_atomic(args.run / "eval_per_view.json", {"iteration": run.iteration, "views": per_view})
+    write_json_atomic(args.run / EVAL, record)
+    write_per_view(args.run / EVAL_PER_VIEW, run.iteration, per_view)
     return record
 
 
@@ -87,7 +87,7 @@ def main(argv: list[str]) -> int:
     unfinished = "" if record["finished"] else f" (unfinished run, {record['iterations']} planned)"
     Console().print(
         f"{record['scene']} / {record['field']} @ {record['iteration']}{unfinished} ({record['split']}): "
-        f"PSNR {record['psnr']:.2f}  SSIM {record['ssim']:.4f}  {describe_lpips(record)} -> {args.run / 'eval.json'}",
+        f"PSNR {record['psnr']:.2f}  SSIM {record['ssim']:.4f}  {describe_lpips(record)} -> {args.run / EVAL}",
         highlight=False,
         soft_wrap=True,
     )

@@ -30,8 +30,7 @@ from liquidgs.errors import ConfigError
 from liquidgs.media import depth_to_uint8, to_uint8, write_png, write_video
 from liquidgs.render.camera_path import CameraPath, read_camera_path
 from liquidgs.settings import parse_flags
-from liquidgs.train.run import TrainedRun, load_run
-from liquidgs.train.trainer import load_run_dataset
+from liquidgs.train.run import TrainedRun, load_run, load_run_dataset
 
 MAX_FRAMES = 100_000
 

@@ -21,27 +21,24 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, Ti
 from liquidgs.errors import ConfigError
 from liquidgs.eval import describe_lpips
 from liquidgs.fields.config import PRESET_NAMES
-from liquidgs.settings import flatten, parse_flag_settings, print_help, wants_help, with_settings
-from liquidgs.train.config import TrainConfig, identity, load_yaml, preset_config, run_folder
-from liquidgs.train.runlock import run_folder_lock
-from liquidgs.train.trainer import (
+from liquidgs.settings import parse_flag_settings, print_help, wants_help, with_settings
+from liquidgs.train.config import TrainConfig, differing_settings, load_yaml, preset_config, run_folder
+from liquidgs.train.run_folder import (
     CONFIG,
     PER_VIEW,
     RESULTS,
-    Trainer,
+    RunResults,
+    check_resume_progress,
+    check_run_dir,
     read_results,
-    run_directory_state,
+    run_folder_lock,
     stale_temporaries,
 )
+from liquidgs.train.trainer import Trainer
 
 
 def default_run_dir(cfg: TrainConfig) -> Path:
     return run_folder(cfg, Path("outputs") / cfg.data.path.resolve().name / cfg.field)
-
-
-def differing_settings(a: TrainConfig, b: TrainConfig) -> list[str]:
-    fa, fb = flatten(identity(a)), flatten(identity(b))
-    return sorted(k for k in fa.keys() | fb.keys() if fa.get(k) != fb.get(k))
 
 
 def _config_file(argv: list[str]) -> tuple[Path | None, list[str]]:
@@ -93,26 +90,6 @@ def resolve_config(argv: list[str]) -> tuple[TrainConfig, Path]:
     return dataclasses.replace(cfg, out=run_dir), run_dir
 
 
-def check_run_dir(cfg: TrainConfig, run_dir: Path) -> str:
-    """Refuse to touch a folder holding anything but this same run. Returns its state."""
-    state = run_directory_state(run_dir)
-    if state == "foreign":
-        what = "is not empty and holds no liquidgs run" if run_dir.is_dir() else "is a file, not a folder"
-        raise ConfigError(f"{run_dir}: output folder {what}; nothing was written")
-    if state in ("finished", "unfinished", "configured") and not cfg.resume:
-        changed = differing_settings(cfg, load_yaml(run_dir / CONFIG))
-        if changed:
-            raise ConfigError(
-                f"{run_dir / CONFIG}: output folder holds a different run (settings differ: {', '.join(changed)}); "
-                "choose another --out"
-            )
-        if state == "unfinished":
-            raise ConfigError(f"{run_dir}: holds an unfinished run of this config; pass --resume to continue it")
-    if cfg.resume and state == "configured":
-        raise ConfigError(f"{run_dir}: nothing to resume (no checkpoint yet); start it again without --resume")
-    return state
-
-
 def make_progress(console: Console) -> Progress:
     return Progress(
         TextColumn("[bold]{task.description}"),
@@ -127,15 +104,6 @@ def make_progress(console: Console) -> Progress:
     )
 
 
-def check_resume_progress(cfg: TrainConfig, run_dir: Path, checkpoint_iteration: int) -> None:
-    """A resume may end a run where it is or extend it, never take it back."""
-    if cfg.iterations < checkpoint_iteration:
-        raise ConfigError(
-            f"{run_dir}: --iterations {cfg.iterations} would go back: the checkpoint is at iteration "
-            f"{checkpoint_iteration}; nothing was changed"
-        )
-
-
 def interrupted_message(trainer: Trainer, run_dir: Path) -> str:
     resume = f"liquidgs train --out {shlex.quote(str(run_dir))} --resume"
     if trainer.checkpoint_iteration is None:
@@ -143,7 +111,7 @@ def interrupted_message(trainer: Trainer, run_dir: Path) -> str:
     return f"the checkpoint at iteration {trainer.checkpoint_iteration} is kept in {run_dir}; continue with: {resume}"
 
 
-def train(cfg: TrainConfig, run_dir: Path, console: Console | None = None, dataset=None) -> dict:
+def train(cfg: TrainConfig, run_dir: Path, console: Console | None = None, dataset=None) -> RunResults:
     """Validate the data, then train (or resume, or report a finished run).
 
     The run folder is written by one process at a time (run_folder_lock); nothing is written
@@ -186,11 +154,11 @@ def train(cfg: TrainConfig, run_dir: Path, console: Console | None = None, datas
                 results = trainer.run(progress)
         except KeyboardInterrupt:
             raise KeyboardInterrupt(interrupted_message(trainer, run_dir)) from None
-    final = results["final"]
+    final = results.final
     console.print(
-        f"[bold]{cfg.field}[/] {results['scene']}: final PSNR {final['psnr']:.2f}  SSIM {final['ssim']:.4f}  "
-        f"{describe_lpips(final)}  ({results['num_gaussians']} Gaussians, "
-        f"{results['train_seconds']:.0f} s) -> {run_dir}"
+        f"[bold]{cfg.field}[/] {results.scene}: final PSNR {final['psnr']:.2f}  SSIM {final['ssim']:.4f}  "
+        f"{describe_lpips(final)}  ({results.num_gaussians} Gaussians, "
+        f"{results.train_seconds:.0f} s) -> {run_dir}"
     )
     return results
 

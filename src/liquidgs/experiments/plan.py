@@ -20,7 +20,7 @@ from liquidgs.data import DataConfig, generate_synthetic
 from liquidgs.errors import ConfigError, LiquidGSError
 from liquidgs.experiments.spec import ExperimentSpec, Grid, SyntheticScene, Variant
 from liquidgs.train.config import TrainConfig, from_dict, preset_config, run_folder
-from liquidgs.train.trainer import RESULTS
+from liquidgs.train.run_folder import RESULTS
 
 MANIFEST = "experiment.json"
 MANIFEST_FORMAT = "liquidgs-experiment-2"

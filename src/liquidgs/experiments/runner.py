@@ -24,7 +24,7 @@ from queue import Queue
 from liquidgs.errors import ConfigError
 from liquidgs.experiments.plan import Experiment, RunEntry
 from liquidgs.train.config import legacy_config_hash, save_yaml
-from liquidgs.train.trainer import CHECKPOINT, RESULTS
+from liquidgs.train.run_folder import CHECKPOINT, RESULTS
 
 LOGS = "logs"
 EXECUTORS = ("local", "ray")

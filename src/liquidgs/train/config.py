@@ -345,6 +345,12 @@ def run_folder(cfg: TrainConfig, parent: Path) -> Path:
     return legacy if not current.exists() and legacy.exists() else current
 
 
+def differing_settings(a: TrainConfig, b: TrainConfig) -> list[str]:
+    """The settings of the identity, as dotted names, in which two configurations differ."""
+    fa, fb = settings.flatten(identity(a)), settings.flatten(identity(b))
+    return sorted(k for k in fa.keys() | fb.keys() if fa.get(k) != fb.get(k))
+
+
 def save_yaml(cfg: TrainConfig, path: Path) -> None:
     write_text_atomic(path, yaml.safe_dump(to_dict(cfg), sort_keys=False))
 

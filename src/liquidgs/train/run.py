@@ -1,4 +1,5 @@
-"""Loading a trained run (config.yml + checkpoint.pt) for evaluation, rendering and export."""
+"""Loading a trained run (config.yml + checkpoint.pt) and its scene for evaluation, rendering and export;
+the trainer sets up its device and scene with the same functions."""
 
 from __future__ import annotations
 
@@ -8,12 +9,13 @@ from pathlib import Path
 import torch
 
 from liquidgs.cameras import Camera
-from liquidgs.errors import LiquidGSError
+from liquidgs.data import SceneDataset, load_dataset, perturb_dataset
+from liquidgs.errors import ConfigError, LiquidGSError
 from liquidgs.fields import build_field
 from liquidgs.gaussians import PARAM_KEYS
 from liquidgs.train.config import TrainConfig, load_yaml
 from liquidgs.train.model import Deformed, deform, render_frame
-from liquidgs.train.trainer import CHECKPOINT, CONFIG, RESULTS, read_checkpoint, resolve_device
+from liquidgs.train.run_folder import CHECKPOINT, CONFIG, RESULTS, read_checkpoint
 
 
 @dataclass
@@ -96,3 +98,21 @@ def load_run(run_dir: str | Path, device: str = "auto") -> TrainedRun:
     iteration = int(state["iteration"])
     finished = (run_dir / RESULTS).is_file() and iteration == cfg.iterations
     return TrainedRun(run_dir, cfg, params, field, int(state["sh_degree"]), iteration, finished)
+
+
+def resolve_device(name: str) -> torch.device:
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    try:
+        device = torch.device(name)
+    except RuntimeError:
+        raise ConfigError(f"unknown device '{name}' (auto, cpu, cuda or cuda:N)") from None
+    if device.type == "cuda" and not torch.cuda.is_available():
+        raise ConfigError(f"device '{name}' asked for, but this torch sees no CUDA device")
+    return device
+
+
+def load_run_dataset(cfg: TrainConfig, clean: SceneDataset | None = None) -> SceneDataset:
+    """The scene as this run sees it: `clean` (else read from cfg.data) with cfg.perturb applied,
+    so training, evaluation and renders of a perturbed run use the same splits."""
+    return perturb_dataset(clean if clean is not None else load_dataset(cfg.data), cfg.perturb, cfg.seed)

@@ -8,7 +8,6 @@ backward, densification statistics / densify / prune / opacity reset, Adam steps
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 import resource
 import time
@@ -18,8 +17,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from liquidgs.atomic import temporaries_of, write_atomic, write_json_atomic
-from liquidgs.data import SceneDataset, load_dataset, perturb_dataset, spread_extent
+from liquidgs.data import SceneDataset, spread_extent
 from liquidgs.data.scene import MIN_CAMERA_EXTENT
 from liquidgs.errors import ConfigError, LiquidGSError
 from liquidgs.eval import LPIPS, LPIPSUnavailable, evaluate_views, ssim
@@ -29,17 +27,21 @@ from liquidgs.gaussians import PARAM_KEYS, init_from_points, init_random_box
 from liquidgs.train.config import TrainConfig, save_yaml
 from liquidgs.train.model import deform, render_frame
 from liquidgs.train.phases import NoClock, PhaseClock
-from liquidgs.train.runlock import LOCK_NAME
+from liquidgs.train.run import load_run_dataset, resolve_device
+from liquidgs.train.run_folder import (
+    CHECKPOINT,
+    CONFIG,
+    PER_VIEW,
+    TENSORBOARD,
+    RunResults,
+    read_checkpoint,
+    write_checkpoint,
+    write_per_view,
+    write_results,
+)
 from liquidgs.train.schedules import log_linear_lr, smooth_time_noise_scale
 from liquidgs.train.strategy import D3DGSStrategy
 
-CHECKPOINT = "checkpoint.pt"
-RESULTS = "results.json"
-PER_VIEW = "per_view.json"
-CONFIG = "config.yml"
-RUN_FILES = (CONFIG, CHECKPOINT, PER_VIEW, RESULTS)
-"""What the trainer writes into a run folder (besides tensorboard/), each atomically."""
-CHECKPOINT_FORMAT = "liquidgs-checkpoint-1"
 # The PSNR guard checks from this iteration on, each time once this many steps have entered the
 # smoothed PSNR since it last started over (one step's PSNR depends on the camera drawn).
 GUARD_START = 100
@@ -53,24 +55,6 @@ DENSIFY_BURST_FRACTION = 0.25
 
 class TrainingDiverged(LiquidGSError):
     pass
-
-
-def resolve_device(name: str) -> torch.device:
-    if name == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    try:
-        device = torch.device(name)
-    except RuntimeError:
-        raise ConfigError(f"unknown device '{name}' (auto, cpu, cuda or cuda:N)") from None
-    if device.type == "cuda" and not torch.cuda.is_available():
-        raise ConfigError(f"device '{name}' asked for, but this torch sees no CUDA device")
-    return device
-
-
-def load_run_dataset(cfg: TrainConfig, clean: SceneDataset | None = None) -> SceneDataset:
-    """The scene as this run sees it: `clean` (else read from cfg.data) with cfg.perturb applied,
-    so training, evaluation and renders of a perturbed run use the same splits."""
-    return perturb_dataset(clean if clean is not None else load_dataset(cfg.data), cfg.perturb, cfg.seed)
 
 
 def make_lpips(cfg: TrainConfig, device: torch.device) -> tuple[LPIPS | None, str | None]:
@@ -204,7 +188,7 @@ class Trainer:
             # A resumed run replays the steps after its checkpoint: purge_step hides the first
             # attempt's events from those steps, so TensorBoard shows each step once.
             purge_step = self._resumed_from + 1 if self._resumed_from else None
-            self._writer = SummaryWriter(str(self.run_dir / "tensorboard"), purge_step=purge_step)
+            self._writer = SummaryWriter(str(self.run_dir / TENSORBOARD), purge_step=purge_step)
         return self._writer
 
     # ----------------------------------------------------------------- the loop
@@ -332,15 +316,15 @@ class Trainer:
         periodic = step >= e.start and (step - e.start) % e.every == 0
         return step == self.cfg.iterations or periodic or step in e.also
 
-    def run(self, progress=None) -> dict:
-        """Train from self.state.iteration to cfg.iterations; returns results.json's content."""
+    def run(self, progress=None) -> RunResults:
+        """Train from self.state.iteration to cfg.iterations; returns what results.json records."""
         try:
             return self._run(progress)
         finally:  # flush the TensorBoard events of a stopped run too
             if self._writer is not None:
                 self._writer.close()
 
-    def _run(self, progress) -> dict:
+    def _run(self, progress) -> RunResults:
         cfg = self.cfg
         save_yaml(cfg, self.run_dir / CONFIG)
         task = (
@@ -429,7 +413,7 @@ class Trainer:
         sync()
         return n / max(time.perf_counter() - started, 1e-9)
 
-    def finish(self) -> dict:
+    def finish(self) -> RunResults:
         cfg = self.cfg
         evaluations = self.state.evaluations
         if not any(e["iteration"] == cfg.iterations for e in evaluations):
@@ -444,47 +428,46 @@ class Trainer:
             peak_mb, peak_kind = torch.cuda.max_memory_allocated() / 2**20, "cuda_max_memory_allocated"
         else:
             peak_mb, peak_kind = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, "process_peak_rss"
-        results = {
-            "scene": self.dataset.scene_name,
-            "data": str(cfg.data.path),
-            "field": cfg.field,
-            "preset": cfg.preset,
-            "lambda": cfg.resolved_lambda(),
-            "seed": cfg.seed,
-            "iterations": cfg.iterations,
-            "final": final,
-            "best_of": {
+        results = RunResults(
+            scene=self.dataset.scene_name,
+            data=str(cfg.data.path),
+            field=cfg.field,
+            preset=cfg.preset,
+            lambda_=cfg.resolved_lambda(),
+            seed=cfg.seed,
+            iterations=cfg.iterations,
+            final=final,
+            best_of={
                 **best,
                 "note": "best test PSNR over the evaluations during training (test-set model selection, "
                 "as the D-3DGS reference reports); use 'final' for an unbiased number",
             },
-            "evaluated_at": [e["iteration"] for e in evaluations],
-            "fps": self.measure_fps(),
-            "num_gaussians": int(self.params["means"].shape[0]),
-            "field_parameters": int(self.field.num_parameters()),
-            "field_flops_per_gaussian": int(self.field.flops_per_gaussian()),
-            "train_seconds": round(self.state.train_seconds, 3),
-            "peak_memory_mb": round(peak_mb, 1),
-            "peak_memory_kind": peak_kind,
-            "device": str(self.device),
-            "backend": cfg.backend,
-            "torch": torch.__version__,
-            "lpips_backbone": cfg.eval.lpips_backbone,
-            "lpips_normalize": cfg.eval.lpips_normalize,
-            "resolution": [self.dataset.train[0].camera.width, self.dataset.train[0].camera.height],
-            "perturb": cfg.perturb.settings(),
-            "views": {"train": len(self.dataset.train), "test": len(self.dataset.test)},
-        }
-        write_json_atomic(self.run_dir / PER_VIEW, {"iteration": cfg.iterations, "views": per_view})
-        write_json_atomic(self.run_dir / RESULTS, results)
+            evaluated_at=[e["iteration"] for e in evaluations],
+            fps=self.measure_fps(),
+            num_gaussians=int(self.params["means"].shape[0]),
+            field_parameters=int(self.field.num_parameters()),
+            field_flops_per_gaussian=int(self.field.flops_per_gaussian()),
+            train_seconds=round(self.state.train_seconds, 3),
+            peak_memory_mb=round(peak_mb, 1),
+            peak_memory_kind=peak_kind,
+            device=str(self.device),
+            backend=cfg.backend,
+            torch=torch.__version__,
+            lpips_backbone=cfg.eval.lpips_backbone,
+            lpips_normalize=cfg.eval.lpips_normalize,
+            resolution=[self.dataset.train[0].camera.width, self.dataset.train[0].camera.height],
+            perturb=cfg.perturb.settings(),
+            views={"train": len(self.dataset.train), "test": len(self.dataset.test)},
+        )
+        write_per_view(self.run_dir / PER_VIEW, cfg.iterations, per_view)
+        write_results(self.run_dir, results)
         return results
 
     # ----------------------------------------------------------------- checkpoints
     def save_checkpoint(self) -> Path:
         if not all(torch.isfinite(p).all() for p in self.params.values()):
             raise self._diverged(f"non-finite Gaussian parameters at iteration {self.state.iteration}")
-        payload = {
-            "format": CHECKPOINT_FORMAT,
+        contents = {
             "params": {k: v.detach().cpu() for k, v in self.params.items()},
             "optimizers": {k: o.state_dict() for k, o in self.optimizers.items()},
             "field": self.field.state_dict(),
@@ -494,14 +477,7 @@ class Trainer:
             "torch_rng": torch.get_rng_state(),
             "camera_rng": self.camera_rng.bit_generator.state,
         }
-
-        def save(tmp: Path) -> None:
-            # Through a Python file object, so a full disk raises OSError(ENOSPC) and not a
-            # torch stream error that never mentions space.
-            with open(tmp, "wb") as file:
-                torch.save(payload, file)
-
-        path = write_atomic(self.run_dir / CHECKPOINT, save)
+        path = write_checkpoint(self.run_dir, contents)
         self.checkpoint_iteration = self.state.iteration
         return path
 
@@ -528,53 +504,3 @@ class Trainer:
         self.state = TrainState(**payload["state"])
         torch.set_rng_state(payload["torch_rng"])
         self.camera_rng.bit_generator.state = payload["camera_rng"]
-
-
-def read_checkpoint(path: Path) -> dict:
-    """A checkpoint's contents; an unreadable, truncated or foreign file is one error naming it.
-
-    weights_only=True: the payload holds only tensors, numbers, strings and plain containers,
-    so a crafted file cannot run code when a shared run folder is evaluated or resumed.
-    """
-    try:
-        payload = torch.load(path, map_location="cpu", weights_only=True)
-        if not isinstance(payload, dict) or payload.get("format") != CHECKPOINT_FORMAT:
-            raise ValueError("not a liquidgs checkpoint")
-        missing = [k for k in PARAM_KEYS if k not in payload["params"]]
-        if missing:
-            raise ValueError(f"missing parameters {missing}")
-    except Exception as err:  # noqa: BLE001 - any unpickling failure means a corrupt or unsafe file
-        first_line = (str(err).strip().splitlines() or [""])[0][:200]
-        raise LiquidGSError(f"{path}: corrupt or unreadable checkpoint ({type(err).__name__}: {first_line})") from None
-    return payload
-
-
-def read_results(run_dir: Path) -> dict:
-    try:
-        return json.loads((run_dir / RESULTS).read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
-        raise LiquidGSError(f"{run_dir / RESULTS}: unreadable ({type(err).__name__})") from None
-
-
-def stale_temporaries(run_dir: Path) -> list[Path]:
-    """Temporaries of the run files that a process killed mid-write left behind."""
-    return [tmp for name in RUN_FILES for tmp in temporaries_of(run_dir / name)]
-
-
-def run_directory_state(run_dir: Path) -> str:
-    """'empty' (absent, or holding only a lock / stale temporaries), 'finished', 'unfinished',
-    'configured' or 'foreign' (anything else, including a file where the folder should be)."""
-    if not run_dir.exists():
-        return "empty"
-    if not run_dir.is_dir():
-        return "foreign"
-    leftovers = {LOCK_NAME, *(tmp.name for tmp in stale_temporaries(run_dir))}
-    if all(entry.name in leftovers for entry in run_dir.iterdir()):
-        return "empty"
-    if not (run_dir / CONFIG).is_file():
-        return "foreign"
-    if (run_dir / RESULTS).is_file():
-        return "finished"
-    if (run_dir / CHECKPOINT).is_file():
-        return "unfinished"
-    return "configured"

@@ -16,8 +16,7 @@ from liquidgs.cameras import Camera
 from liquidgs.errors import LiquidGSError
 from liquidgs.gaussians import activate, read_ply
 from liquidgs.render import rasterize
-from liquidgs.train.run import TrainedRun, load_run
-from liquidgs.train.trainer import load_run_dataset
+from liquidgs.train.run import TrainedRun, load_run, load_run_dataset
 
 
 class RunScene:

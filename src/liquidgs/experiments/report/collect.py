@@ -17,7 +17,7 @@ from liquidgs.errors import LiquidGSError
 from liquidgs.experiments.plan import Experiment, RunEntry, read_manifest
 from liquidgs.fields.config import FIELD_LABELS, FIELD_NAMES
 from liquidgs.train.config import TrainConfig, load_yaml
-from liquidgs.train.trainer import CONFIG, PER_VIEW, RESULTS
+from liquidgs.train.run_folder import CONFIG, PER_VIEW, RESULTS, check_results_format
 
 EVALUATIONS = ("final", "best_of")
 SCORE_KEYS = ("psnr", "ssim")
@@ -105,6 +105,7 @@ def _number(value) -> bool:
 
 def _check_results(path: Path, results: dict) -> None:
     """Every field the report reads, so a damaged file fails here with its name, not mid-report."""
+    check_results_format(results, path)
     for which in EVALUATIONS:
         evaluation = results.get(which)
         if not isinstance(evaluation, dict):

@@ -14,8 +14,7 @@ from liquidgs.experiments.report.aggregate import DatasetScores
 from liquidgs.experiments.report.collect import Method, RunRecord
 from liquidgs.fields.config import PAPER_LAMBDA
 from liquidgs.media import labelled, to_uint8, write_png
-from liquidgs.train.run import load_run
-from liquidgs.train.trainer import load_run_dataset
+from liquidgs.train.run import load_run, load_run_dataset
 
 QUALITATIVE_SCENES = 3
 PANEL = 192

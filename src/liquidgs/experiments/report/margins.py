@@ -32,8 +32,7 @@ from liquidgs.experiments.report.tables import PlainTable
 from liquidgs.experiments.spec import SyntheticScene
 from liquidgs.fields.config import FIELD_LABELS
 from liquidgs.media import to_uint8
-from liquidgs.train.run import load_run
-from liquidgs.train.trainer import load_run_dataset
+from liquidgs.train.run import load_run, load_run_dataset
 
 BASELINE = "static"
 REGIONS = ("whole", "foreground", "moving")

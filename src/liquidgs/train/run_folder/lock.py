@@ -1,4 +1,4 @@
-"""One writer per run folder: an exclusive fcntl.flock on DIR/.liquidgs.lock.
+"""One writer per run folder: an exclusive fcntl.flock on DIR/.liquidgs.lock (LOCK_NAME).
 
 The operating system releases the lock when its process ends, however it ends, so a killed
 run never leaves a stale lock. The holder writes its PID into the file so that a second
@@ -16,8 +16,8 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from liquidgs.errors import LiquidGSError
+from liquidgs.train.run_folder.layout import LOCK_NAME
 
-LOCK_NAME = ".liquidgs.lock"
 # A writer retries this long: a writer_pid() probe holds the lock for microseconds.
 _ACQUIRE_SECONDS = 1.0
 

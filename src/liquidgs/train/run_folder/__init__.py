@@ -1,0 +1,66 @@
+"""A run folder: what `liquidgs train` writes, and what eval, render, export, the viewer and the
+experiments read. Readers import this package, never the training loop.
+
+    config.yml        the resolved configuration (written first)
+    checkpoint.pt     the latest checkpoint (CHECKPOINT_FORMAT)
+    per_view.json     each test view's scores at the last iteration
+    results.json      RunResults (RESULTS_FORMAT), written last: the run's only "done" marker
+    tensorboard/      training curves
+    eval.json, eval_per_view.json   written by `liquidgs eval`
+    .liquidgs.lock    held by the one process writing the folder (lock.py)
+
+Each file is written atomically. A folder is empty, configured, unfinished, finished or foreign
+(run_directory_state); `liquidgs train` refuses what rules.py says, before writing anything.
+"""
+
+from liquidgs.train.run_folder.layout import (
+    CHECKPOINT,
+    CONFIG,
+    EVAL,
+    EVAL_PER_VIEW,
+    LOCK_NAME,
+    PER_VIEW,
+    RESULTS,
+    TENSORBOARD,
+    run_directory_state,
+    stale_temporaries,
+)
+from liquidgs.train.run_folder.lock import run_folder_lock, writer_pid
+from liquidgs.train.run_folder.records import (
+    CHECKPOINT_FORMAT,
+    RESULTS_FORMAT,
+    RunResults,
+    check_results_format,
+    read_checkpoint,
+    read_results,
+    write_checkpoint,
+    write_per_view,
+    write_results,
+)
+from liquidgs.train.run_folder.rules import check_resume_progress, check_run_dir
+
+__all__ = [
+    "CHECKPOINT",
+    "CHECKPOINT_FORMAT",
+    "CONFIG",
+    "EVAL",
+    "EVAL_PER_VIEW",
+    "LOCK_NAME",
+    "PER_VIEW",
+    "RESULTS",
+    "RESULTS_FORMAT",
+    "TENSORBOARD",
+    "RunResults",
+    "check_results_format",
+    "check_resume_progress",
+    "check_run_dir",
+    "read_checkpoint",
+    "read_results",
+    "run_directory_state",
+    "run_folder_lock",
+    "stale_temporaries",
+    "write_checkpoint",
+    "write_per_view",
+    "write_results",
+    "writer_pid",
+]

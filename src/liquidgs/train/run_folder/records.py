@@ -1,0 +1,166 @@
+"""The formats of a run folder's records: results.json, the per-view files and checkpoint.pt."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import typing
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+
+from liquidgs.atomic import write_atomic, write_json_atomic
+from liquidgs.errors import LiquidGSError
+from liquidgs.gaussians import PARAM_KEYS
+from liquidgs.train.run_folder.layout import CHECKPOINT, RESULTS
+
+RESULTS_FORMAT = "liquidgs-results-1"
+"""A results.json without a format was written before the format was recorded: it is this one."""
+CHECKPOINT_FORMAT = "liquidgs-checkpoint-1"
+
+
+@dataclass(frozen=True, kw_only=True)
+class RunResults:
+    """results.json: a finished run's record, written once when training ends.
+
+    `final` and `best_of` are evaluation summaries (eval.evaluate_views, with the iteration);
+    their keys belong to the evaluation, not to this format.
+    """
+
+    format: str = RESULTS_FORMAT
+    scene: str
+    data: str
+    field: str
+    preset: str
+    lambda_: float
+    """The resolved noise level ("lambda" in the file)."""
+    seed: int
+    iterations: int
+    final: dict
+    """The evaluation at the last iteration: the unbiased number."""
+    best_of: dict
+    """The evaluation with the best test PSNR (test-set model selection), with a note saying so."""
+    evaluated_at: list
+    fps: float
+    num_gaussians: int
+    field_parameters: int
+    field_flops_per_gaussian: int
+    train_seconds: float
+    peak_memory_mb: float
+    peak_memory_kind: str
+    """cuda_max_memory_allocated or process_peak_rss: what peak_memory_mb measures."""
+    device: str
+    backend: str
+    torch: str
+    lpips_backbone: str
+    lpips_normalize: bool
+    resolution: list
+    """[width, height] of the training images."""
+    perturb: dict
+    """The perturbations switched on, by name (data.perturb)."""
+    views: dict
+    """{"train": n, "test": n}."""
+
+    def to_json(self) -> dict:
+        return {_json_key(name): value for name, value in dataclasses.asdict(self).items()}
+
+    @classmethod
+    def from_json(cls, raw, path: Path) -> RunResults:
+        """The record in `raw` (results.json's content); anything else is one error naming `path`."""
+        if not isinstance(raw, dict):
+            raise LiquidGSError(f"{path}: corrupt results (not a JSON object)")
+        check_results_format(raw, path)
+        types = typing.get_type_hints(cls)
+        names = {_json_key(f.name): f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(raw.keys() - names.keys())
+        if unknown:
+            raise LiquidGSError(f"{path}: field '{unknown[0]}' is not part of {RESULTS_FORMAT}")
+        for key, name in names.items():
+            if name == "format":
+                continue
+            if key not in raw:
+                raise LiquidGSError(f"{path}: field '{key}' is missing")
+            if not _is_a(raw[key], types[name]):
+                raise LiquidGSError(f"{path}: field '{key}' is not {_JSON_KINDS[types[name]]}")
+        return cls(**{name: raw[key] for key, name in names.items() if key in raw})
+
+
+_JSON_KINDS = {
+    str: "a string",
+    int: "an integer",
+    float: "a number",
+    bool: "true or false",
+    dict: "an object",
+    list: "a list",
+}
+
+
+def check_results_format(raw: dict, path: Path) -> None:
+    """Refuse results of a format this version does not read (none recorded: the first)."""
+    version = raw.get("format", RESULTS_FORMAT)
+    if version != RESULTS_FORMAT:
+        raise LiquidGSError(f"{path}: results format {version!r} is not one this liquidgs reads ({RESULTS_FORMAT})")
+
+
+def _json_key(name: str) -> str:
+    return "lambda" if name == "lambda_" else name
+
+
+def _is_a(value, kind: type) -> bool:
+    if isinstance(value, bool):  # a bool is an int to Python, never to this format
+        return kind is bool
+    if kind is float:
+        return isinstance(value, (int, float))
+    return isinstance(value, kind)
+
+
+def write_results(run_dir: Path, results: RunResults) -> Path:
+    return write_json_atomic(run_dir / RESULTS, results.to_json())
+
+
+def read_results(run_dir: Path) -> RunResults:
+    path = run_dir / RESULTS
+    try:
+        raw = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise LiquidGSError(f"{path}: unreadable ({type(err).__name__})") from None
+    return RunResults.from_json(raw, path)
+
+
+def write_per_view(path: Path, iteration: int, views: list[dict]) -> Path:
+    """PER_VIEW (training's final evaluation) or EVAL_PER_VIEW: each view's scores at `iteration`."""
+    return write_json_atomic(path, {"iteration": iteration, "views": views})
+
+
+def write_checkpoint(run_dir: Path, contents: dict) -> Path:
+    """checkpoint.pt: the trainer's `contents` (tensors, numbers, strings and plain containers
+    only, so read_checkpoint can load it safely) under this format's marker."""
+    payload = {"format": CHECKPOINT_FORMAT, **contents}
+
+    def save(tmp: Path) -> None:
+        # Through a Python file object, so a full disk raises OSError(ENOSPC) and not a
+        # torch stream error that never mentions space.
+        with open(tmp, "wb") as file:
+            torch.save(payload, file)
+
+    return write_atomic(run_dir / CHECKPOINT, save)
+
+
+def read_checkpoint(path: Path) -> dict:
+    """A checkpoint's contents; an unreadable, truncated or foreign file is one error naming it.
+
+    weights_only=True: the payload holds only tensors, numbers, strings and plain containers,
+    so a crafted file cannot run code when a shared run folder is evaluated or resumed.
+    """
+    try:
+        payload = torch.load(path, map_location="cpu", weights_only=True)
+        if not isinstance(payload, dict) or payload.get("format") != CHECKPOINT_FORMAT:
+            raise ValueError("not a liquidgs checkpoint")
+        missing = [k for k in PARAM_KEYS if k not in payload["params"]]
+        if missing:
+            raise ValueError(f"missing parameters {missing}")
+    except Exception as err:  # noqa: BLE001 - any unpickling failure means a corrupt or unsafe file
+        first_line = (str(err).strip().splitlines() or [""])[0][:200]
+        raise LiquidGSError(f"{path}: corrupt or unreadable checkpoint ({type(err).__name__}: {first_line})") from None
+    return payload
