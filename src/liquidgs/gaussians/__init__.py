@@ -7,7 +7,6 @@ from liquidgs.gaussians.model import (
     init_random_box,
     num_sh_bases,
     rgb_to_sh0,
-    sh0_to_rgb,
 )
 from liquidgs.gaussians.neighbors import mean_sq_dist_to_neighbors
 from liquidgs.gaussians.ply import read_ply, write_ply
@@ -21,6 +20,5 @@ __all__ = [
     "num_sh_bases",
     "read_ply",
     "rgb_to_sh0",
-    "sh0_to_rgb",
     "write_ply",
 ]
