@@ -200,7 +200,7 @@ def test_split_is_gsplats_split_given_the_same_draws_but_with_unmeasured_childre
         assert not state[key][kept:].any() and their_state[key][kept:].all()
 
 
-def test_split_count_and_divisor_are_settings():
+def test_split_count_is_a_setting_and_the_scale_divisor_follows_it():
     params, optimizers = make_setup()
     before = torch.exp(params["scales"].detach()[[4]])
     _split(params, optimizers, measured_state(6), torch.tensor([False] * 4 + [True, False]), count=3, generator=None)
