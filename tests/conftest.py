@@ -1,6 +1,10 @@
+import shutil
+from pathlib import Path
+
 import pytest
 import torch
 
+from liquidgs.data import generate_synthetic
 from shared_data import lpips_weights_dir
 
 
@@ -18,3 +22,14 @@ def one_torch_thread():
 def lpips_weights():
     """The offline LPIPS backbone weights folder from ../shared (skipped without it, failed under CI)."""
     return lpips_weights_dir()
+
+
+@pytest.fixture(scope="session")
+def puppet_scene(tmp_path_factory) -> Path:
+    """The synthetic puppet in the D-NeRF layout (32 px, 16 frames, seed 5) as <folder>/puppet, made
+    once for every test that only reads a scene; a test that changes a scene changes a copy."""
+    root = tmp_path_factory.mktemp("puppet_scene")
+    generated = generate_synthetic("puppet", root / "generated", size=32, frames=16, seed=5)
+    shutil.move(str(generated / "dnerf"), str(root / "puppet"))
+    shutil.rmtree(generated)
+    return root / "puppet"

@@ -12,6 +12,8 @@ from pathlib import Path
 
 import pytest
 
+from liquidgs.eval.lpips import WEIGHTS_ENV
+
 SHARED = Path(__file__).resolve().parents[2] / "shared"
 REQUIRE_ENV = "LIQUIDGS_REQUIRE_SHARED"
 LPIPS_DIR = SHARED / "data" / "lpips"
@@ -36,6 +38,14 @@ def require_shared(path: Path) -> Path:
 def lpips_weights_dir() -> Path:
     """The offline LPIPS backbone weights (alexnet / squeezenet features), or skip as above."""
     return require_shared(LPIPS_DIR / "alexnet_features.pth").parent
+
+
+def use_optional_lpips(monkeypatch) -> Path | None:
+    """optional_lpips_dir(); when there is one, the code under test finds it through $LIQUIDGS_LPIPS_WEIGHTS."""
+    found = optional_lpips_dir()
+    if found:
+        monkeypatch.setenv(WEIGHTS_ENV, str(found))
+    return found
 
 
 def optional_lpips_dir() -> Path | None:

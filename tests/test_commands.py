@@ -18,8 +18,6 @@ from liquidgs.render import rasterize
 from liquidgs.train.run import load_run
 from shared_data import optional_lpips_dir
 
-LPIPS_DIR = optional_lpips_dir()
-
 
 @pytest.fixture(scope="module")
 def trained_run(tmp_path_factory) -> Path:
@@ -46,8 +44,9 @@ def trained_run(tmp_path_factory) -> Path:
         "--out",
         str(out),
     ]
-    if LPIPS_DIR:
-        flags += ["--eval.lpips-weights", str(LPIPS_DIR)]
+    lpips_dir = optional_lpips_dir()
+    if lpips_dir:
+        flags += ["--eval.lpips-weights", str(lpips_dir)]
     cfg, run_dir = resolve_config(flags)
     train(cfg, run_dir)
     return out

@@ -14,14 +14,13 @@ from pathlib import Path
 
 import torch
 
-from liquidgs.data import generate_synthetic
+from tiny_runs import tiny_flags
 
 SRC = Path(__file__).resolve().parents[1] / "src"
 
+# A checkpoint every 5 steps: the kills land between many of them.
 FLAGS = [
-    "--field", "mlp", "--preset", "tiny", "--iterations", "40", "--warmup", "5", "--init-points", "300",
-    "--sh-interval", "10", "--densify.start", "5", "--densify.interval", "5", "--densify.opacity-reset-interval", "15",
-    "--eval.start", "20", "--eval.every", "20", "--eval.fps-frames", "1", "--checkpoint-every", "5",
+    "--field", "mlp", *tiny_flags({"checkpoint_every": 5}),
     "--eval.lpips-weights", "/nonexistent-lpips-weights", "--device", "cpu",
 ]  # fmt: skip
 
@@ -56,8 +55,8 @@ def restart_args(out: Path, scene: Path) -> list[str]:
     return ["train", "--data", str(scene), "--out", str(out), *FLAGS, *resume]
 
 
-def test_kill_9_at_random_moments_then_resume_is_bit_exact(tmp_path):
-    scene = Path(generate_synthetic("puppet", tmp_path / "puppet", size=32, frames=16, seed=5)) / "dnerf"
+def test_kill_9_at_random_moments_then_resume_is_bit_exact(puppet_scene, tmp_path):
+    scene = puppet_scene
     whole, killed = tmp_path / "whole", tmp_path / "killed"
     reference = launch(["train", "--data", str(scene), "--out", str(whole), *FLAGS])
     assert reference.wait(timeout=120) == 0, reference.stderr.read()

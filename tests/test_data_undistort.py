@@ -10,8 +10,6 @@ with the written intrinsics, which no code under test touches.
 
 from __future__ import annotations
 
-import contextlib
-import io
 import json
 import shutil
 from pathlib import Path
@@ -20,11 +18,11 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from liquidgs.cli import main as cli
 from liquidgs.data import DataConfig, check_dataset, generate_synthetic
 from liquidgs.data.colmap import Undistorter
 from liquidgs.data.nerfies import NerfiesCamera, camera_json
 from liquidgs.data.synthetic import Primitive, render_rgba
+from tiny_runs import run_cli
 from video_scene import BACKGROUND, Lens, camera_path, moving_ball, render_through_lens
 
 WIDTH, HEIGHT = 160, 120
@@ -35,13 +33,6 @@ FRAMES = 4
 # edges stay off its faces.
 WALL = Primitive("wall", "box", (9.0, 0.21, 3.0), ((0.1, 0.1, 0.15), (0.95, 0.9, 0.8)), "checker", 0.3,
                  np.eye(3), np.array([0.0, 2.6, 0.6]))  # fmt: skip
-
-
-def run_cli(args: list[str]) -> tuple[int, str, str]:
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        code = cli(args)
-    return code, out.getvalue(), err.getvalue()
 
 
 def prims(frame: int) -> list[Primitive]:

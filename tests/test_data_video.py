@@ -15,8 +15,6 @@ scene writes the same scene as the default run.
 
 from __future__ import annotations
 
-import contextlib
-import io
 import json
 import subprocess
 import sys
@@ -27,13 +25,13 @@ import pycolmap
 import pytest
 from PIL import Image
 
-from liquidgs.cli import main as cli
 from liquidgs.data import DataConfig, check_dataset, load_dataset
 from liquidgs.data.capture import CaptureSettings, capture_scene
 from liquidgs.data.colmap import SolveOptions
 from liquidgs.data.synthetic import render_rgba
 from liquidgs.data.video import extract_video_frames
 from liquidgs.media import write_video
+from tiny_runs import run_cli
 from video_scene import FOCAL, Lens, render_handheld_video, scene_at
 
 FRAMES = 32
@@ -44,13 +42,6 @@ IMAGES = 20  # the image-folder run: the first 20 frames, and a blank one among 
 BLANK_AT = 10
 PHONE_LENS = Lens(k1=-0.15)  # barrel distortion as a phone's main camera shows it; SIMPLE_RADIAL's model
 DISTORTED_FRAMES = 16
-
-
-def run_cli(args: list[str]) -> tuple[int, str, str]:
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        code = cli(args)
-    return code, out.getvalue(), err.getvalue()
 
 
 @pytest.fixture(scope="module")

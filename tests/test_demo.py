@@ -5,14 +5,11 @@ import numpy as np
 from PIL import Image
 
 from liquidgs.cli import main as cli
-from shared_data import optional_lpips_dir
-
-LPIPS_DIR = optional_lpips_dir()
+from shared_data import use_optional_lpips
 
 
 def test_demo_writes_the_report(tmp_path, monkeypatch, capsys):
-    if LPIPS_DIR:
-        monkeypatch.setenv("LIQUIDGS_LPIPS_WEIGHTS", str(LPIPS_DIR))
+    lpips_dir = use_optional_lpips(monkeypatch)
     out = tmp_path / "report"
     assert cli(["demo", "--out", str(out), "--size", "32", "--iterations", "30"]) == 0
     report = (out / "report.md").read_text()
@@ -20,7 +17,7 @@ def test_demo_writes_the_report(tmp_path, monkeypatch, capsys):
         assert f"| {label} |" in report
     assert "| field | PSNR | moving-region PSNR |" in report and "of the test pixels" in report
     assert "**final**" in report and "Fastest-moving test frame" in report
-    if LPIPS_DIR:
+    if lpips_dir:
         assert "LPIPS: LPIPS-Alex, v0.1, inputs scaled to [-1,1] (the paper names no backbone; the D-3DGS" in report
     else:
         assert "LPIPS-Alex unavailable: backbone weights not found" in report

@@ -1,28 +1,19 @@
 """The Gaussians-per-pixel cap of densification (DensifyConfig.max_per_pixel) and the quick look
 that `liquidgs data video` prints with it."""
 
-import contextlib
-import io
 import json
 from pathlib import Path
 
 import torch
 
-from liquidgs.cli import main as cli
 from liquidgs.commands.data import quick_look_commands
 from liquidgs.data import generate_synthetic
 from liquidgs.train.config import config_hash, identity, legacy_identity, preset_config
 from liquidgs.train.strategy import D3DGSStrategy, DensifyConfig
 from test_strategy import make_info, make_setup
+from tiny_runs import run_cli
 
 README = Path(__file__).resolve().parents[1] / "README.md"
-
-
-def run_cli(args: list[str]) -> tuple[int, str, str]:
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        code = cli(args)
-    return code, out.getvalue(), err.getvalue()
 
 
 def test_an_uncapped_config_has_the_version_1_identity_of_before_the_cap_existed():

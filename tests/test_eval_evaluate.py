@@ -11,8 +11,9 @@ import numpy as np
 import pytest
 import torch
 
+from liquidgs.atomic import write_json_atomic
 from liquidgs.errors import ConfigError
-from liquidgs.eval import LPIPS, evaluate_views, psnr, quantize_8bit, ssim, write_json_atomic
+from liquidgs.eval import LPIPS, evaluate_views, psnr, quantize_8bit, ssim
 
 
 @dataclass

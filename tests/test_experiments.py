@@ -23,15 +23,11 @@ from liquidgs.experiments.runner import run_experiment
 from liquidgs.experiments.spec import DNERF_SCENES, NERFDS_SCENES
 from liquidgs.train.config import load_yaml
 from shared_data import DNERF_ROOT, require_shared
+from tiny_runs import run_cli, tiny_overrides
 
-# A run of a few seconds: 32 px, a few hundred Gaussians, an evaluation at the end only.
-FAST = {
-    "iterations": 16,
-    "warmup": 4,
-    "init_points": 300,
-    "checkpoint_every": 8,
-    "eval": {"start": 16, "fps_frames": 2},
-}
+# A run of a few seconds: 32 px, a few hundred Gaussians, an evaluation at the end only; two
+# frames timed, which a test finds in the run's config.yml.
+FAST = tiny_overrides({"iterations": 16, "checkpoint_every": 8, "eval.start": 16, "eval.fps_frames": 2})
 
 
 @pytest.fixture(scope="module")
@@ -244,36 +240,29 @@ def test_manifest_errors(tmp_path):
 
 
 # ----------------------------------------------------------------------------- the command
-def run_cli(argv: list[str], capsys) -> tuple[int, str, str]:
-    code = cli_main(argv)
-    out = capsys.readouterr()
-    return code, out.out, out.err
-
-
-def test_dry_run_lists_runs_and_writes_nothing(data_root, tmp_path, capsys):
+def test_dry_run_lists_runs_and_writes_nothing(data_root, tmp_path):
     spec = write_spec(tmp_path / "s.yml", small_spec())
     code, out, _ = run_cli(
-        ["experiment", "run", str(spec), "--data-root", str(data_root), "--out", str(tmp_path / "e"), "--dry-run"],
-        capsys,
+        ["experiment", "run", str(spec), "--data-root", str(data_root), "--out", str(tmp_path / "e"), "--dry-run"]
     )
     assert code == 0 and "4 runs (0 done)" in out and out.count("to run") == 4
     assert not (tmp_path / "e").exists()
 
 
-def test_bad_spec_on_the_command_line_is_one_line(data_root, tmp_path, capsys):
+def test_bad_spec_on_the_command_line_is_one_line(data_root, tmp_path):
     spec = write_spec(tmp_path / "s.yml", small_spec(fields=["mlp", "nope"]))
-    code, _, err = run_cli(["experiment", "run", str(spec), "--data-root", str(data_root)], capsys)
+    code, _, err = run_cli(["experiment", "run", str(spec), "--data-root", str(data_root)])
     assert code == 2 and err.strip().count("\n") == 0 and "unknown field 'nope'" in err
 
 
-def test_run_skip_done_and_keep_going_after_a_failure(data_root, tmp_path, capsys):
+def test_run_skip_done_and_keep_going_after_a_failure(data_root, tmp_path):
     broken_root = tmp_path / "data"
     shutil.copytree(data_root, broken_root)
     (broken_root / "spinner" / "transforms_train.json").write_text("{not json")
     spec = write_spec(tmp_path / "s.yml", small_spec())
     argv = ["experiment", "run", str(spec), "--data-root", str(broken_root), "--out", str(tmp_path / "e")]
 
-    code, _, err = run_cli(argv, capsys)
+    code, _, err = run_cli(argv)
     assert code == 1
     assert "done 2, skipped 0 (finished before), failed 2" in err
     assert "tiny-spinner-mlp-s0" in err and "transforms_train.json" in err
@@ -283,18 +272,18 @@ def test_run_skip_done_and_keep_going_after_a_failure(data_root, tmp_path, capsy
 
     # Mend the data: the second run trains only what failed, and skips what is done.
     shutil.copy(data_root / "spinner" / "transforms_train.json", broken_root / "spinner" / "transforms_train.json")
-    code, _, err = run_cli(argv, capsys)
+    code, _, err = run_cli(argv)
     assert code == 0 and "done 2, skipped 2 (finished before), failed 0" in err
     for run in experiment.runs:
         log = (tmp_path / "e" / "logs" / f"{run.name}.log").read_text()
         assert log.count("$ ") == (2 if run.scene == "spinner" else 1)
     # A third run trains nothing.
-    code, _, err = run_cli(argv, capsys)
+    code, _, err = run_cli(argv)
     assert code == 0 and "done 0, skipped 4" in err
 
 
 def test_an_interrupted_grid_resumes_and_trains_every_run_once(data_root, tmp_path):
-    spec = small_spec(overrides={**FAST, "iterations": 60, "checkpoint_every": 5, "eval": {"start": 60}})
+    spec = small_spec(overrides=tiny_overrides({"iterations": 60, "checkpoint_every": 5, "eval.start": 60}))
     spec_file = write_spec(tmp_path / "s.yml", spec)
     out = tmp_path / "e"
     command = [sys.executable, "-m", "liquidgs.cli", "experiment", "run", str(spec_file),
@@ -341,7 +330,7 @@ def test_parallel_must_be_positive(data_root, tmp_path):
 # ----------------------------------------------------------------------------- Ray
 def test_ray_executor_runs_every_run_once_and_survives_a_killed_worker(data_root, tmp_path):
     spec = small_spec(
-        fields=["mlp"], overrides={**FAST, "iterations": 100, "checkpoint_every": 10, "eval": {"start": 100}}
+        fields=["mlp"], overrides=tiny_overrides({"iterations": 100, "checkpoint_every": 10, "eval.start": 100})
     )
     experiment = expand(spec_from_dict(spec, "s.yml"), data_root, tmp_path / "e")
     write_manifest(experiment)

@@ -27,11 +27,11 @@ from liquidgs.experiments.report.write import score_table
 from liquidgs.experiments.runner import train_command
 from liquidgs.fields.config import PAPER_LAMBDA
 from liquidgs.train.config import preset_config, save_yaml
-from shared_data import PAPER_DIR, optional_lpips_dir, require_shared
+from shared_data import PAPER_DIR, require_shared, use_optional_lpips
+from tiny_runs import tiny_overrides
 
 PAPER = PAPER_DIR / "000_90a69819efc025de.txt"
 TARGETS = PAPER_DIR / "targets.json"
-LPIPS_DIR = optional_lpips_dir()
 RANK_BY_NAME = {"best": 0, "second": 1, "third": 2}
 RANK_BY_COLOUR = {"red!60": 0, "orange!57": 1, "yellow!55": 2}
 
@@ -167,19 +167,16 @@ def test_shipped_targets_are_the_shared_numbers():
 
 
 # ------------------------------------------------------------------ a small real experiment
-FAST = {
-    "iterations": 24, "warmup": 6, "init_points": 400, "sh_interval": 10, "densify.start": 6,
-    "densify.interval": 6, "densify.opacity_reset_interval": 15, "eval.start": 8, "eval.every": 8,
-    "eval.fps_frames": 2, "checkpoint_every": 12,
-}  # fmt: skip
+# Three evaluations per run (8, 16, 24), for the report's final / best-of numbers.
+FAST = tiny_overrides({
+    "iterations": 24, "warmup": 6, "init_points": 400, "densify.start": 6, "densify.interval": 6,
+    "eval.start": 8, "eval.every": 8, "eval.fps_frames": 2, "checkpoint_every": 12,
+})  # fmt: skip
 
 
 @pytest.fixture(scope="module")
 def experiment(tmp_path_factory) -> Path:
     """2 scenes (named like D-NeRF scenes, so references apply) x mlp / sde, tiny preset, 24 iterations."""
-    if LPIPS_DIR:
-        mp = pytest.MonkeyPatch()
-        mp.setenv("LIQUIDGS_LPIPS_WEIGHTS", str(LPIPS_DIR))
     root = tmp_path_factory.mktemp("report")
     for scene, synthetic in (("hook", "puppet"), ("lego", "spinner")):
         generated = generate_synthetic(synthetic, root / "gen" / scene, size=32, frames=20, seed=3)
@@ -189,10 +186,10 @@ def experiment(tmp_path_factory) -> Path:
     directory = root / "exp"
     plan = expand(spec, root / "data", directory)
     write_manifest(plan)
-    for run in plan.runs:
-        assert train_main(train_command(run, directory)[4:]) == 0
-    if LPIPS_DIR:
-        mp.undo()
+    with pytest.MonkeyPatch.context() as mp:
+        use_optional_lpips(mp)
+        for run in plan.runs:
+            assert train_main(train_command(run, directory)[4:]) == 0
     return directory
 
 

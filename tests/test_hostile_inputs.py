@@ -15,22 +15,18 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from liquidgs.cli import main as cli
-from liquidgs.commands.train import resolve_config, train
-from liquidgs.data import generate_synthetic
+from tiny_runs import run_train, snapshot, tiny_flags
 
-TINY = [
-    "--preset", "tiny", "--iterations", "10", "--warmup", "5", "--init-points", "200", "--eval.start", "10",
-    "--eval.fps-frames", "1", "--eval.lpips-weights", "/nonexistent-lpips-weights",
-]  # fmt: skip
+# 10 iterations: these runs are refused before training, or trained only to be read.
+TINY = [*tiny_flags({"iterations": 10, "eval.start": 10}), "--eval.lpips-weights", "/nonexistent-lpips-weights"]
 
 
 @pytest.fixture(scope="module")
-def world(tmp_path_factory) -> dict[str, Path]:
+def world(tmp_path_factory, puppet_scene) -> dict[str, Path]:
     root = tmp_path_factory.mktemp("hostile")
-    scene = Path(generate_synthetic("spinner", root / "spinner", size=32, frames=16, seed=4)) / "dnerf"
+    scene = puppet_scene
     run = root / "run"
-    cfg, run_dir = resolve_config(["--data", str(scene), "--field", "mlp", "--out", str(run), *TINY])
-    train(cfg, run_dir)
+    run_train(["--data", str(scene), "--field", "mlp", "--out", str(run), *TINY])
     a_file = root / "a_file.txt"
     a_file.write_text("not a folder")
     return {"scene": scene, "run": run, "file": a_file, "missing": root / "missing"}
@@ -149,12 +145,6 @@ CASES = {
     "demo seed negative": (["demo", "--out", "{work}/demo", "--seed", "-1"], "seed"),
     "demo bad scene": (["demo", "--out", "{work}/demo", "--scene", "teapot"], "unknown synthetic scene"),
 }
-
-
-def snapshot(*folders: Path) -> dict[str, int]:
-    return {
-        str(p): p.stat().st_mtime_ns for folder in folders if folder.exists() for p in folder.rglob("*")
-    }
 
 
 def assert_one_line_exit_2(argv: list[str], capsys, message: str = "") -> str:

@@ -16,14 +16,12 @@ import torch
 import yaml
 
 from liquidgs.cli import main as cli
-from liquidgs.commands.train import resolve_config, train
-from liquidgs.data import generate_synthetic
+from liquidgs.commands.train import resolve_config
 from liquidgs.errors import LiquidGSError
 from liquidgs.train.run_folder import (
     CHECKPOINT_FORMAT,
     LOCK_NAME,
     RESULTS_FORMAT,
-    RunResults,
     read_results,
     run_directory_state,
     run_folder_lock,
@@ -32,39 +30,24 @@ from liquidgs.train.run_folder import (
 )
 from liquidgs.train.strategy import D3DGSStrategy, DensifyConfig
 from liquidgs.train.trainer import Trainer
+from tiny_runs import one_line_error, run_train, snapshot, tiny_flags
 
 SRC = Path(__file__).resolve().parents[1] / "src"
 
 FLAGS = [
-    "--field", "mlp", "--preset", "tiny", "--iterations", "30", "--warmup", "5", "--init-points", "300",
-    "--sh-interval", "10", "--densify.start", "5", "--densify.interval", "5", "--densify.opacity-reset-interval", "15",
-    "--eval.start", "10", "--eval.every", "10", "--eval.fps-frames", "1", "--checkpoint-every", "10",
+    "--field", "mlp", *tiny_flags({"iterations": 30, "eval.start": 10, "eval.every": 10}),
     "--eval.lpips-backbone", "squeeze", "--eval.lpips-weights", "/nonexistent-lpips-weights",
 ]  # fmt: skip
 
 
-@pytest.fixture(scope="module")
-def scene(tmp_path_factory) -> Path:
-    root = generate_synthetic("puppet", tmp_path_factory.mktemp("scene") / "puppet", size=32, frames=16, seed=3)
-    return Path(root) / "dnerf"
+@pytest.fixture(scope="session")
+def scene(puppet_scene) -> Path:
+    return puppet_scene
 
 
 @pytest.fixture(autouse=True)
 def _one_thread(one_torch_thread):
     yield
-
-
-def run_train(args: list[str]) -> RunResults:
-    cfg, run_dir = resolve_config(args)
-    return train(cfg, run_dir)
-
-
-def one_line_error(capsys) -> str:
-    """The command's error line (training may have drawn its progress bar before it)."""
-    err = capsys.readouterr().err
-    lines = [line for line in err.splitlines() if line.startswith("liquidgs ")]
-    assert "Traceback" not in err and len(lines) == 1, err
-    return lines[0]
 
 
 def interrupt_at(step_to_stop: int, args: list[str], monkeypatch) -> None:
@@ -79,10 +62,6 @@ def interrupt_at(step_to_stop: int, args: list[str], monkeypatch) -> None:
     with pytest.raises(KeyboardInterrupt):
         run_train(args)
     monkeypatch.setattr(Trainer, "train_step", original)
-
-
-def snapshot(folder: Path) -> dict[str, bytes]:
-    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
 
 
 # ----------------------------------------------------------------- 1. one writer

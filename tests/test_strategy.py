@@ -1,9 +1,11 @@
+import copy
 import math
 
 import torch
+from gsplat.strategy import ops as gsplat_ops
 
 from liquidgs.gaussians import PARAM_KEYS, init_random_box
-from liquidgs.train.strategy import D3DGSStrategy, DensifyConfig
+from liquidgs.train.strategy import D3DGSStrategy, DensifyConfig, _duplicate_unmeasured, _split
 
 
 def make_setup(n=6, extent=1.0):
@@ -114,3 +116,93 @@ def test_adam_steps_after_densification():
     for opt in optimizers.values():
         opt.step()
     assert not torch.equal(before, params["means"].detach())
+
+
+# gsplat.strategy.ops does the strategy's bookkeeping; these pin what D-3DGS needs from it and
+# the two places it differs, so a gsplat release that changes an op fails here, not in training.
+
+
+def copy_setup(params, optimizers):
+    """An independent copy of make_setup's parameters and Adam states."""
+    twin = torch.nn.ParameterDict({k: torch.nn.Parameter(v.detach().clone()) for k, v in params.items()})
+    twin_optimizers = {}
+    for key in PARAM_KEYS:
+        twin_optimizers[key] = torch.optim.Adam([twin[key]], lr=1e-3, eps=1e-15)
+        twin_optimizers[key].load_state_dict(copy.deepcopy(optimizers[key].state_dict()))
+    return twin, twin_optimizers
+
+
+def measured_state(n):
+    return {
+        key: torch.arange(1.0, n + 1) * scale for key, scale in (("grad_accum", 0.1), ("count", 1), ("max_radii", 7))
+    }
+
+
+def moments(optimizers, params, key):
+    return optimizers[key].state[params[key]]
+
+
+def test_clone_appends_copies_with_zero_moments_and_unmeasured_statistics():
+    params, optimizers = make_setup()
+    before, before_optimizers = copy_setup(params, optimizers)
+    state = measured_state(6)
+    mask = torch.tensor([True, False, False, True, False, False])
+    _duplicate_unmeasured(params, optimizers, state, mask)
+    for key in PARAM_KEYS:
+        assert torch.equal(params[key], torch.cat([before[key], before[key][mask]]))
+        assert optimizers[key].param_groups[0]["params"] == [params[key]]
+        old, new = moments(before_optimizers, before, key), moments(optimizers, params, key)
+        assert torch.equal(new["step"], old["step"])
+        for name in ("exp_avg", "exp_avg_sq"):
+            assert torch.equal(new[name], torch.cat([old[name], torch.zeros_like(old[name][mask])]))
+    for key, value in measured_state(6).items():
+        # gsplat's duplicate would give the copies their sources' statistics.
+        assert torch.equal(state[key], torch.cat([value, torch.zeros(2)]))
+
+
+def test_remove_keeps_the_others_rows_moments_and_statistics():
+    params, optimizers = make_setup()
+    before, before_optimizers = copy_setup(params, optimizers)
+    state = measured_state(6)
+    mask = torch.tensor([False, True, True, False, False, True])
+    gsplat_ops.remove(params, optimizers, state, mask)
+    for key in PARAM_KEYS:
+        assert torch.equal(params[key], before[key][~mask])
+        old, new = moments(before_optimizers, before, key), moments(optimizers, params, key)
+        assert torch.equal(new["step"], old["step"])
+        for name in ("exp_avg", "exp_avg_sq"):
+            assert torch.equal(new[name], old[name][~mask])
+    for key, value in measured_state(6).items():
+        assert torch.equal(state[key], value[~mask])
+
+
+def test_split_is_gsplats_split_given_the_same_draws_but_with_unmeasured_children():
+    params, optimizers = make_setup()
+    theirs, their_optimizers = copy_setup(params, optimizers)
+    state, their_state = measured_state(6), measured_state(6)
+    mask = torch.tensor([False, True, False, True, True, False])
+    _split(params, optimizers, state, mask, count=2, generator=torch.Generator().manual_seed(7))
+    torch.manual_seed(7)  # gsplat draws the same standard normals from the global generator
+    gsplat_ops.split(theirs, their_optimizers, their_state, mask)
+    for key in PARAM_KEYS:
+        assert params[key].shape == theirs[key].shape
+        if key == "means":  # the same draws, rotated by a different product
+            assert torch.allclose(params[key], theirs[key], atol=1e-6)
+        else:
+            assert torch.equal(params[key], theirs[key]), key
+        ours, gsplats = moments(optimizers, params, key), moments(their_optimizers, theirs, key)
+        assert ours.keys() == gsplats.keys()
+        for name in ours:
+            assert torch.equal(ours[name], gsplats[name]), (key, name)
+    kept = int((~mask).sum())
+    for key in state:
+        assert torch.equal(state[key][:kept], their_state[key][:kept])
+        assert not state[key][kept:].any() and their_state[key][kept:].all()
+
+
+def test_split_count_is_a_setting_and_the_scale_divisor_follows_it():
+    params, optimizers = make_setup()
+    before = torch.exp(params["scales"].detach()[[4]])
+    _split(params, optimizers, measured_state(6), torch.tensor([False] * 4 + [True, False]), count=3, generator=None)
+    assert params["means"].shape[0] == 6 - 1 + 3
+    assert torch.equal(torch.exp(params["scales"].detach()[-3:]), torch.exp(torch.log(before / 2.4)).repeat(3, 1))

@@ -7,7 +7,6 @@ import dataclasses
 import json
 import math
 import re
-import shutil
 from pathlib import Path
 
 import numpy as np
@@ -17,7 +16,7 @@ import yaml
 from scipy import stats
 
 from liquidgs.cli import main as cli_main
-from liquidgs.data import DataConfig, PerturbConfig, generate_synthetic, load_dataset, perturb_dataset
+from liquidgs.data import DataConfig, PerturbConfig, load_dataset, perturb_dataset
 from liquidgs.data.perturb import NoisyFrame
 from liquidgs.errors import ConfigError
 from liquidgs.experiments import BUILTIN_SPECS, expand, generate_scenes, spec_from_dict
@@ -35,17 +34,15 @@ from liquidgs.train.config import (
     preset_config,
 )
 from shared_data import DNERF_ROOT, require_shared
+from tiny_runs import tiny_flags
 
-FAST = ["--preset", "tiny", "--iterations", "12", "--warmup", "4", "--init-points", "300",
-        "--checkpoint-every", "6", "--eval.start", "12", "--eval.fps-frames", "2"]  # fmt: skip
+# 12 iterations: these runs check what is recorded, not what is learnt.
+FAST = tiny_flags({"iterations": 12, "eval.start": 12})
 
 
-@pytest.fixture(scope="module")
-def scene(tmp_path_factory) -> Path:
-    root = tmp_path_factory.mktemp("scene")
-    generated = generate_synthetic("puppet", root / "gen", size=32, frames=16, seed=5)
-    shutil.move(str(generated / "dnerf"), str(root / "puppet"))
-    return root / "puppet"
+@pytest.fixture(scope="session")
+def scene(puppet_scene) -> Path:
+    return puppet_scene
 
 
 @pytest.fixture(scope="module")

@@ -16,38 +16,18 @@ from liquidgs.data import generate_synthetic, synthetic
 from liquidgs.data.synthetic import Primitive
 from liquidgs.errors import ConfigError
 from liquidgs.train.config import config_hash, identity, legacy_identity, load_yaml, preset_config, save_yaml
-from liquidgs.train.run_folder import RESULTS_FORMAT, RunResults
+from liquidgs.train.run_folder import RESULTS_FORMAT
 from liquidgs.train.trainer import Trainer, TrainingDiverged
-from shared_data import optional_lpips_dir
+from shared_data import optional_lpips_dir, use_optional_lpips
+from tiny_runs import one_line_error, run_train, tiny_flags
 
-LPIPS_DIR = optional_lpips_dir()
-
-SMOKE_FLAGS = [
-    "--preset",
-    "tiny",
-    "--iterations",
-    "40",
-    "--warmup",
-    "10",
-    "--init-points",
-    "800",
-    "--sh-interval",
-    "15",
-    "--densify.start",
-    "10",
-    "--densify.interval",
-    "10",
-    "--densify.opacity-reset-interval",
-    "25",
-    "--eval.start",
-    "20",
-    "--eval.every",
-    "20",
-    "--eval.fps-frames",
-    "3",
-    "--checkpoint-every",
-    "20",
-]
+# The smoke runs: 800 random points, a longer warm-up, densifying every 10 steps with a reset at 25,
+# three frames timed, a checkpoint at 20 (the resume test stops at 21, just after it).
+SMOKE_CHANGES = {
+    "warmup": 10, "init_points": 800, "sh_interval": 15, "densify.start": 10, "densify.interval": 10,
+    "densify.opacity_reset_interval": 25, "eval.fps_frames": 3, "checkpoint_every": 20,
+}  # fmt: skip
+SMOKE_FLAGS = tiny_flags(SMOKE_CHANGES)
 
 
 @pytest.fixture(scope="module")
@@ -57,14 +37,8 @@ def small_scene(tmp_path_factory) -> Path:
 
 
 @pytest.fixture(autouse=True)
-def lpips_weights(monkeypatch):
-    if LPIPS_DIR:
-        monkeypatch.setenv("LIQUIDGS_LPIPS_WEIGHTS", str(LPIPS_DIR))
-
-
-def run_train(args: list[str]) -> RunResults:
-    cfg, run_dir = resolve_config(args)
-    return train(cfg, run_dir)
+def optional_lpips(monkeypatch):
+    use_optional_lpips(monkeypatch)
 
 
 def train_until_interrupted(args: list[str], monkeypatch) -> None:
@@ -95,7 +69,7 @@ def test_each_field_trains_and_writes_a_complete_run(small_scene, tmp_path, fiel
     assert on_disk["best_of"]["iteration"] in (20, 40) and "model selection" in on_disk["best_of"]["note"]
     assert on_disk["final"]["psnr"] > 8.0 and on_disk["fps"] > 0
     assert on_disk["lpips_backbone"] == "alex"
-    if LPIPS_DIR:
+    if optional_lpips_dir():
         assert on_disk["final"]["lpips"] is not None
     assert (on_disk["field_parameters"] == 0) == (field == "static")
     assert on_disk["lambda"] == (0.05 if field == "sde" else 0.0)
@@ -252,13 +226,6 @@ def test_guard_measures_from_the_last_scheduled_disturbance(small_scene, tmp_pat
     assert trainer._scheduled_disturbance(500, False, int(n / 1.1), quiet) is None
 
 
-def one_line_error(capsys) -> str:
-    err = capsys.readouterr().err.strip()
-    assert "Traceback" not in err
-    assert len(err.splitlines()) == 1, err
-    return err
-
-
 def test_unknown_field_and_preset_are_one_line_errors(small_scene, tmp_path, capsys):
     assert cli(["train", "--data", str(small_scene), "--preset", "huge", "--out", str(tmp_path / "a")]) == 2
     assert "unknown preset 'huge'" in one_line_error(capsys)
@@ -343,7 +310,7 @@ def test_real_data_path_trains_from_the_point_cloud_with_smooth_time(small_scene
 
     nerfies = small_scene.parent / "nerfies"
     out = tmp_path / "real"
-    flags = [f for f in SMOKE_FLAGS if f not in ("--init-points", "800")]
+    flags = tiny_flags(SMOKE_CHANGES, drop=("init_points",))
     cfg, run_dir = resolve_config(
         ["--data", str(nerfies), "--field", "cfc", "--smooth-time", "--out", str(out), *flags]
     )

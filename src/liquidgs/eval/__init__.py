@@ -3,7 +3,6 @@
 Importing this package loads no weights; an :class:`LPIPS` reads its files when built.
 """
 
-from liquidgs.atomic import write_json_atomic  # results.json / per_view.json writer, shared project-wide
 from liquidgs.eval.evaluate import EvalFrame, describe_lpips, evaluate_views
 from liquidgs.eval.lpips import LPIPS, LPIPSUnavailable, lin_weights_path, resolve_backbone_weights
 from liquidgs.eval.metrics import psnr, quantize_8bit, ssim
@@ -19,5 +18,4 @@ __all__ = [
     "quantize_8bit",
     "resolve_backbone_weights",
     "ssim",
-    "write_json_atomic",
 ]

@@ -6,7 +6,6 @@ from liquidgs.gaussians.model import (
     init_from_points,
     init_random_box,
     rgb_to_sh0,
-    sh0_to_rgb,
 )
 from liquidgs.gaussians.neighbors import mean_sq_dist_to_neighbors
 from liquidgs.gaussians.ply import read_ply, write_ply
@@ -19,6 +18,5 @@ __all__ = [
     "mean_sq_dist_to_neighbors",
     "read_ply",
     "rgb_to_sh0",
-    "sh0_to_rgb",
     "write_ply",
 ]

@@ -24,10 +24,6 @@ def rgb_to_sh0(rgb: torch.Tensor) -> torch.Tensor:
     return (rgb - 0.5) / SH_C0
 
 
-def sh0_to_rgb(sh0: torch.Tensor) -> torch.Tensor:
-    return sh0 * SH_C0 + 0.5
-
-
 def _params_from(means: torch.Tensor, sh0: torch.Tensor, sh_degree: int, init_opacity: float) -> torch.nn.ParameterDict:
     n = means.shape[0]
     d2 = mean_sq_dist_to_neighbors(means, k=3).clamp_min(1e-7)

@@ -235,7 +235,6 @@ _FLOAT_RULES = {
     "densify.percent_dense": _non_negative,
     "densify.max_screen_radius": _positive,
     "densify.max_world_size": _positive,
-    "densify.split_scale_divisor": _positive,
     "densify.reset_opacity_to": _open_unit,
     "densify.max_per_pixel": _non_negative,
 }
@@ -300,11 +299,13 @@ def _hash(d: dict) -> str:
 
 
 # Version 1 kept the data settings at the top level (data_format for data.format), a placeholder
-# name, preset and lambda in field_options that never took effect, and left out three settings
-# at the values of runs made before they existed.
+# name, preset and lambda in field_options that never took effect, densify.split_scale_divisor
+# (a setting nothing read: the split divides by 0.8 x split_count, as D-3DGS), and left out
+# three settings at the values of runs made before they existed.
 _V1_DATA_KEYS = {"path": "data", "format": "data_format", "downscale": "downscale", "background": "background",
                  "split": "split", "val_as_test": "val_as_test"}  # fmt: skip
 _V1_FIELD_OPTIONS = {"name": "mlp", "preset": "dnerf", "lambda_": None}
+_V1_SPLIT_SCALE_DIVISOR = 1.6
 
 
 def legacy_identity(cfg: TrainConfig) -> dict:
@@ -314,6 +315,7 @@ def legacy_identity(cfg: TrainConfig) -> dict:
     data = d.pop("data")
     d.update({v1: data[key] for key, v1 in _V1_DATA_KEYS.items()})
     d["field_options"] = {**_V1_FIELD_OPTIONS, **d["field_options"]}
+    d["densify"]["split_scale_divisor"] = _V1_SPLIT_SCALE_DIVISOR
     if not cfg.perturb.active:
         del d["perturb"]
     if not cfg.eval.also:
@@ -334,6 +336,8 @@ def upgrade_v1(raw: dict) -> dict:
     raw["data"] = data
     if isinstance(raw.get("field_options"), dict):
         raw["field_options"] = {k: v for k, v in raw["field_options"].items() if k not in _V1_FIELD_OPTIONS}
+    if isinstance(raw.get("densify"), dict):
+        raw["densify"] = {k: v for k, v in raw["densify"].items() if k != "split_scale_divisor"}
     return raw
 
 

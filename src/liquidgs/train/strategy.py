@@ -4,7 +4,10 @@ Mirrors the reference (Deformable-3D-Gaussians) rather than gsplat's DefaultStra
 small / split large Gaussians whose view-space gradient exceeds a threshold, prune by
 opacity, screen radius (pixels) and world size, and reset opacities every N steps. gsplat
 1.5.3's DefaultStrategy never resets opacity (operator-precedence bug), one reason this
-strategy is our own; the other is that its size tests are normalised differently.
+strategy is our own; the other is that its size tests are normalised differently. The
+bookkeeping (removing, duplicating, resetting opacity along with the Adam moments and this
+strategy's statistics) is gsplat.strategy.ops; only the split and the statistics of new
+Gaussians differ from it (see _split and _duplicate_unmeasured).
 """
 
 from __future__ import annotations
@@ -13,8 +16,8 @@ from dataclasses import dataclass
 from typing import Literal
 
 import torch
+from gsplat.strategy import ops as gsplat_ops
 
-from liquidgs.gaussians.model import PARAM_KEYS
 from liquidgs.render.projection import quat_to_rotmat
 
 
@@ -37,7 +40,7 @@ class DensifyConfig:
     max_world_size: float = 0.1
     """... or larger than this fraction of the scene extent."""
     split_count: int = 2
-    split_scale_divisor: float = 1.6
+    """Children of a split Gaussian; their scales are the parent's / (0.8 x split_count), as D-3DGS."""
     reset_opacity_to: float = 0.01
     max_per_pixel: float = 0.0
     """Cap on the Gaussians densification may grow to, per pixel of a training image (0: no cap,
@@ -70,7 +73,10 @@ class D3DGSStrategy:
         info: dict,
         generator: torch.Generator | None = None,
     ) -> dict[str, int]:
-        """Call after loss.backward() and before the optimizers step. Returns what changed."""
+        """Call after loss.backward() and before the optimizers step. Returns what changed.
+
+        `params` holds only the Gaussians' parameters, each with its own optimizer in
+        `optimizers`: gsplat's ops resize every entry of `params`."""
         cfg = self.config
         report = {"cloned": 0, "split": 0, "pruned": 0, "reset": 0, "pruned_all": 0}
         if step >= cfg.stop:
@@ -80,7 +86,8 @@ class D3DGSStrategy:
             pixels = int(info["width"]) * int(info["height"])
             report.update(self._densify_and_prune(params, optimizers, state, step, generator, pixels))
         if step % cfg.opacity_reset_interval == 0:
-            self._reset_opacity(params, optimizers)
+            # min(opacity, reset_opacity_to) with zeroed Adam moments, as the reference.
+            gsplat_ops.reset_opa(params, optimizers, state, cfg.reset_opacity_to)
             report["reset"] = 1
         return report
 
@@ -115,30 +122,14 @@ class D3DGSStrategy:
         clone_mask = high_grad & small
         n_clone = int(clone_mask.sum())
         if n_clone:
-            new = {k: params[k][clone_mask] for k in PARAM_KEYS}
-            _append(params, optimizers, state, new)
+            _duplicate_unmeasured(params, optimizers, state, clone_mask)
 
         # Split uses the masks padded over the clones just appended, as the reference does.
-        n_now = params["means"].shape[0]
-        pad = n_now - high_grad.shape[0]
+        pad = params["means"].shape[0] - high_grad.shape[0]
         split_mask = torch.cat([high_grad & ~small, high_grad.new_zeros(pad)])
         n_split = int(split_mask.sum())
         if n_split:
-            k = cfg.split_count
-            scales = torch.exp(params["scales"][split_mask]).repeat(k, 1)
-            samples = torch.normal(torch.zeros_like(scales), scales, generator=generator)
-            rotmats = quat_to_rotmat(params["quats"][split_mask]).repeat(k, 1, 1)
-            new = {
-                "means": torch.bmm(rotmats, samples[..., None])[..., 0] + params["means"][split_mask].repeat(k, 1),
-                "scales": torch.log(scales / (0.8 * k)),
-                "quats": params["quats"][split_mask].repeat(k, 1),
-                "opacities": params["opacities"][split_mask].repeat(k),
-                "sh0": params["sh0"][split_mask].repeat(k, 1, 1),
-                "shN": params["shN"][split_mask].repeat(k, 1, 1),
-            }
-            _append(params, optimizers, state, new)
-            split_mask = torch.cat([split_mask, split_mask.new_zeros(k * n_split)])
-            _remove(params, optimizers, state, split_mask)
+            _split(params, optimizers, state, split_mask, cfg.split_count, generator)
 
         prune = torch.sigmoid(params["opacities"]) < cfg.prune_opacity
         if step > cfg.opacity_reset_interval:
@@ -151,7 +142,7 @@ class D3DGSStrategy:
             prune[torch.argmax(params["opacities"])] = False
         n_pruned = int(prune.sum())
         if n_pruned:
-            _remove(params, optimizers, state, prune)
+            gsplat_ops.remove(params, optimizers, state, prune)
 
         for key in ("grad_accum", "count", "max_radii"):
             state[key].zero_()
@@ -175,58 +166,39 @@ class D3DGSStrategy:
         kept[candidates[order[fits]]] = True
         return kept
 
-    @torch.no_grad()
-    def _reset_opacity(self, params, optimizers) -> None:
-        target = torch.logit(torch.tensor(self.config.reset_opacity_to, dtype=params["opacities"].dtype))
-        new_value = torch.minimum(params["opacities"], target.to(params["opacities"].device))
-        _replace(params, optimizers, "opacities", new_value)
+
+@torch.no_grad()
+def _duplicate_unmeasured(params, optimizers, state, mask: torch.Tensor, copies: int = 1) -> None:
+    """Append `copies` copies of the Gaussians in `mask` by gsplat's duplicate (zero Adam moments),
+    then zero the copies' densification statistics.
+
+    gsplat's duplicate gives each copy its source's statistics; in D-3DGS a new Gaussian starts
+    unmeasured, so the screen-radius prune later in the same step does not judge a clone by the
+    radius its source reached.
+    """
+    n = mask.shape[0]
+    for _ in range(copies):
+        grown = params["means"].shape[0] - n
+        gsplat_ops.duplicate(params, optimizers, state, torch.cat([mask, mask.new_zeros(grown)]))
+    for value in state.values():
+        value[n:] = 0
 
 
-def _adam_state(optimizer: torch.optim.Optimizer, param: torch.nn.Parameter) -> dict | None:
-    return optimizer.state.get(param)
+@torch.no_grad()
+def _split(params, optimizers, state, mask: torch.Tensor, count: int, generator: torch.Generator | None) -> None:
+    """Replace each Gaussian in `mask` by `count` children drawn inside it, each 0.8 * count times smaller.
 
-
-def _swap_param(
-    params: torch.nn.ParameterDict,
-    optimizers: dict[str, torch.optim.Optimizer],
-    key: str,
-    new_data: torch.Tensor,
-    state_fn,
-) -> None:
-    """Replace params[key] by a new Parameter, carrying over (transformed) Adam moments."""
-    old = params[key]
-    new_param = torch.nn.Parameter(new_data.contiguous(), requires_grad=old.requires_grad)
-    optimizer = optimizers[key]
-    moments = optimizer.state.pop(old, None)
-    optimizer.param_groups[0]["params"] = [new_param]
-    if moments is not None:
-        for name in ("exp_avg", "exp_avg_sq"):
-            moments[name] = state_fn(moments[name])
-        optimizer.state[new_param] = moments
-    params[key] = new_param
-
-
-def _append(params, optimizers, state, new: dict[str, torch.Tensor]) -> None:
-    n_new = new["means"].shape[0]
-    for key in PARAM_KEYS:
-        _swap_param(
-            params,
-            optimizers,
-            key,
-            torch.cat([params[key].detach(), new[key]]),
-            lambda m: torch.cat([m, m.new_zeros((n_new, *m.shape[1:]))]),
-        )
-    for key, value in state.items():
-        state[key] = torch.cat([value, value.new_zeros(n_new)])
-
-
-def _remove(params, optimizers, state, mask: torch.Tensor) -> None:
-    keep = ~mask
-    for key in PARAM_KEYS:
-        _swap_param(params, optimizers, key, params[key].detach()[keep], lambda m: m[keep])
-    for key, value in state.items():
-        state[key] = value[keep]
-
-
-def _replace(params, optimizers, key: str, value: torch.Tensor) -> None:
-    _swap_param(params, optimizers, key, value, torch.zeros_like)
+    Not gsplat's split, which always makes two children, divides by 1.6 (= 0.8 * 2) and draws
+    from the global generator: D-3DGS's split count is a setting and the draws come from
+    `generator`. The rows come out as gsplat's: the others in order, then the children
+    (all first children, then all second ...).
+    """
+    scales = torch.exp(params["scales"][mask]).repeat(count, 1)
+    samples = torch.normal(torch.zeros_like(scales), scales, generator=generator)
+    rotmats = quat_to_rotmat(params["quats"][mask]).repeat(count, 1, 1)
+    means = torch.bmm(rotmats, samples[..., None])[..., 0] + params["means"][mask].repeat(count, 1)
+    n = mask.shape[0]
+    _duplicate_unmeasured(params, optimizers, state, mask, copies=count)
+    params["means"][n:] = means
+    params["scales"][n:] = torch.log(scales / (0.8 * count))
+    gsplat_ops.remove(params, optimizers, state, torch.cat([mask, mask.new_zeros(count * int(mask.sum()))]))
