@@ -159,7 +159,10 @@ class HexPlaneLevel(nn.Module):
 
     def forward(self, space_coords: torch.Tensor, time_coords: torch.Tensor) -> torch.Tensor:
         """The product of the six planes' samples, [C, N]."""
-        return sample_planes(self.space, space_coords).prod(0) * sample_planes(self.time, time_coords).prod(0)
+        # Written out: prod(0)'s backward handles zeros and costs more than all the products here.
+        xy, xz, yz = sample_planes(self.space, space_coords)
+        xt, yt, zt = sample_planes(self.time, time_coords)
+        return xy * xz * yz * xt * yt * zt
 
 
 class HexPlaneField(DeformationField):
@@ -204,7 +207,8 @@ class HexPlaneField(DeformationField):
         low, high = self.aabb
         unit = (xyz - low) * (2 / (high - low)) - 1
         n = xyz.shape[0]
-        space_coords = torch.stack((unit[:, [0, 1]], unit[:, [0, 2]], unit[:, [1, 2]]))
+        # [3 planes, N, 2]: (x, y), (x, z), (y, z) and (x, t), (y, t), (z, t), as SPACE_ / TIME_PLANES.
+        space_coords = unit[:, [0, 1, 0, 2, 1, 2]].view(n, 3, 2).transpose(0, 1)
         time_coords = torch.stack((unit, t.expand(n, 3)), dim=2).transpose(0, 1)
         return torch.cat([level(space_coords, time_coords) for level in self.levels]).t()
 
