@@ -275,8 +275,8 @@ def test_presets_and_bad_settings():
     assert set(PRESETS) == {"dnerf", "nerfds", "tiny"}
     assert HexPlaneConfig.preset("tiny", width=7).width == 7
     for overrides, match in (
-        (dict(resolution=1), "resolution must be >= 2"),
-        (dict(time_resolution=1), "time_resolution must be >= 2"),
+        (dict(resolution=2), "resolution must be >= 3"),
+        (dict(time_resolution=2), "time_resolution must be >= 3"),
         (dict(features=0), "features must be >= 1"),
         (dict(multires=()), "multires"),
         (dict(multires=(1, 0)), "multires"),

@@ -13,8 +13,8 @@ As in 4DGaussians:
   that `fit_bounds` sets from the initial points (4DGaussians: the initial point cloud's
   min / max); until then it is the cube [-1.6, 1.6]^3 (4DGaussians' `bounds` default);
 - the time enters the grid as it is: t in [0, 1] covers the upper half of the time planes' [-1, 1]
-  axis, so their lower half is only ever pulled by the regularisers. Kept so that a time
-  resolution means what it means in 4DGaussians' configs;
+  axis, so the nodes below t = 0 (but the nearest) are never sampled, only regularised. Kept so
+  that a time resolution means what it means in 4DGaussians' configs;
 - sampling uses corner-aligned nodes and clamps outside the box (grid_sample with
   align_corners=True, padding_mode='border'); only spatial resolutions grow with the level;
 - space planes start uniform in [0.1, 0.5] and time planes at 1, so at initialisation the
@@ -34,11 +34,10 @@ from torch.nn import functional as F
 from liquidgs.errors import ConfigError
 from liquidgs.fields.base import DeformationField, Deltas, linear_flops, stacked_linear
 
+# A plane 'ab' is stored [C, size of b, size of a]: its first axis runs along the columns, as
+# grid_sample reads a coordinate pair (a, b).
 SPACE_PLANES = ("xy", "xz", "yz")
 TIME_PLANES = ("xt", "yt", "zt")
-AXES = "xyzt"
-"""A plane 'ab' is stored [C, size of b, size of a]: its first axis runs along the columns, as
-grid_sample reads a coordinate pair (a, b)."""
 
 DEFAULT_BOUNDS = 1.6
 """Half-size of the box before fit_bounds (4DGaussians' ModelHiddenParams.bounds)."""
@@ -65,9 +64,9 @@ class HexPlaneConfig:
     """4DGaussians' l1_time_planes: mean |1 - time plane|."""
 
     def __post_init__(self) -> None:
-        for key in ("resolution", "time_resolution"):
-            if getattr(self, key) < 2:
-                raise ConfigError(f"hexplane: {key} must be >= 2, got {getattr(self, key)}")
+        for key in ("resolution", "time_resolution"):  # the smoothness takes second differences
+            if getattr(self, key) < 3:
+                raise ConfigError(f"hexplane: {key} must be >= 3, got {getattr(self, key)}")
         for key in ("features", "width"):
             if getattr(self, key) < 1:
                 raise ConfigError(f"hexplane: {key} must be >= 1, got {getattr(self, key)}")
@@ -197,7 +196,7 @@ class HexPlaneField(DeformationField):
         if not torch.isfinite(xyz).all():
             raise ValueError("fit_bounds: the points must be finite")
         low, high = xyz.amin(0), xyz.amax(0)
-        flat = [AXES[i] for i in range(3) if high[i] <= low[i]]
+        flat = ["xyz"[i] for i in range(3) if high[i] <= low[i]]
         if flat:
             raise ValueError(f"fit_bounds: the points have no extent along {', '.join(flat)}")
         self.aabb.copy_(torch.stack((low, high)))
