@@ -31,8 +31,10 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from liquidgs.errors import ConfigError
+from liquidgs.errors import ConfigError, LiquidGSError
 from liquidgs.fields.base import DeformationField, Deltas, linear_flops, stacked_linear
+from liquidgs.fields.config import FieldConfig
+from liquidgs.fields.registry import register as register_field
 
 # A plane 'ab' is stored [C, size of b, size of a]: its first axis runs along the columns, as
 # grid_sample reads a coordinate pair (a, b).
@@ -201,6 +203,13 @@ class HexPlaneField(DeformationField):
             raise ValueError(f"fit_bounds: the points have no extent along {', '.join(flat)}")
         self.aabb.copy_(torch.stack((low, high)))
 
+    def setup(self, xyz: torch.Tensor) -> None:
+        """The field contract's set-up hook: the box from the initial means, as 4DGaussians does."""
+        try:
+            self.fit_bounds(xyz)
+        except ValueError as error:
+            raise LiquidGSError(f"field 'hexplane': {error}") from None
+
     def grid_features(self, xyz: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
         """The fused multi-resolution feature [N, features x levels] at xyz [N, 3] and t [1 or N, 1]."""
         low, high = self.aabb
@@ -218,7 +227,9 @@ class HexPlaneField(DeformationField):
         return tuple(out(F.relu(h)) for out, h in zip(outs, stacked_linear(hidden, list(heads))))
 
     def regulariser_loss(self) -> torch.Tensor:
-        """4DGaussians' grid regulariser, weighted: summed over the levels,
+        """The field contract's regulariser hook (the trainer adds it after the warm-up, as
+        4DGaussians adds it in its fine stage only). 4DGaussians' grid regulariser, weighted:
+        summed over the levels,
         space_smoothness_weight x smoothness of the space planes (4DGaussians calls this term
         plane TV, but its code takes the second difference along each space plane's second axis -
         y for xy, z for xz and yz - and never calls the K-Planes TV it ships),
@@ -234,3 +245,13 @@ class HexPlaneField(DeformationField):
         """The Linear layers only, as for every field; the grid lookups (per level 6 planes x
         features x 4 corners, then the products) are not counted, like an encoding."""
         return linear_flops(self)
+
+
+def build(config: FieldConfig) -> HexPlaneField:
+    """The field of a run's config: sized by its preset (--field-options do not apply)."""
+    return HexPlaneField(HexPlaneConfig.preset(config.preset))
+
+
+def register() -> None:
+    """The 'liquidgs.fields' entry point (liquidgs' pyproject.toml): hexplane registers as a plugin would."""
+    register_field("hexplane", build, presets=PRESETS, label="HexPlane (4D-GS)")
