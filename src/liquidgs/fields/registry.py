@@ -58,6 +58,10 @@ ENTRY_POINT_GROUP = "liquidgs.fields"
 BUILTIN_PACKAGE = "liquidgs"
 
 
+class NameTaken(ConfigError):
+    """A field name registered a second time."""
+
+
 @dataclass(frozen=True)
 class FieldType:
     """One registered field."""
@@ -90,7 +94,8 @@ class FieldRegistry:
         self._conflicts: dict[str, str] = {}
         """Names registered twice: the one-line error that using them gives."""
         self.problems: list[str] = []
-        """One line per plugin that failed to load or registered a taken name."""
+        """One line per plugin that failed to load or registered a taken name (printed as warnings)."""
+        self._failed_packages: list[str] = []
         self._loaded = False
         self._package: str | None = None
         """The package whose registrations are running (None: a direct call)."""
@@ -124,7 +129,7 @@ class FieldRegistry:
             self._conflicts[name] = (
                 f"field '{name}' is registered by two packages, '{first}' and '{package}': uninstall one"
             )
-            raise ConfigError(self._conflicts[name])
+            raise NameTaken(self._conflicts[name])
         self._fields[name] = FieldType(name, factory, label or name, presets, family, package)
 
     def _load(self) -> None:
@@ -147,9 +152,10 @@ class FieldRegistry:
             self._package = package
             try:
                 entry_point.load()()
-            except ConfigError as error:
-                self._problem(f"field plugin package '{package}': {error}")
+            except NameTaken as error:
+                self._problem(str(error))
             except Exception as error:
+                self._failed_packages.append(package)
                 self._problem(
                     f"field plugin package '{package}' failed to load ({entry_point.name} = {entry_point.value}): "
                     f"{type(error).__name__}: {error}"
@@ -170,8 +176,9 @@ class FieldRegistry:
         if name in self._conflicts:
             raise ConfigError(self._conflicts[name])
         if name not in self._fields:
-            failed = "".join(f"; {line}" for line in self.problems)
-            raise ConfigError(f"unknown field '{name}' (choose from {', '.join(self._fields)}){failed}")
+            failed = self._failed_packages
+            note = f"; field plugin packages that failed to load: {', '.join(failed)}" if failed else ""
+            raise ConfigError(f"unknown field '{name}' (choose from {', '.join(self._fields)}){note}")
         return self._fields[name]
 
 

@@ -15,7 +15,7 @@ from pathlib import Path
 
 from liquidgs.errors import LiquidGSError
 from liquidgs.experiments.plan import Experiment, RunEntry, read_manifest
-from liquidgs.fields.registry import field_label, field_names
+from liquidgs.fields.registry import field_label, field_names, field_type
 from liquidgs.train.config import TrainConfig, load_yaml
 from liquidgs.train.trainer import CONFIG, PER_VIEW, RESULTS
 
@@ -33,6 +33,7 @@ class Method:
 
     @classmethod
     def of(cls, field: str, lambda_: float) -> Method:
+        field_type(field)  # a run of a field no longer registered: one line, the registered ones
         return cls(field_names().index(field), lambda_ if field == "sde" else 0.0)
 
     @property
