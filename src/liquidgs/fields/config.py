@@ -1,7 +1,9 @@
 """FieldConfig: every size and noise setting of a deformation field, with per-dataset presets.
 
 A setting left at None takes its value from the preset of the field's family ("mlp" for the
-D-3DGS MLP, "liquid" for the CfC / SDE fields); `resolved()` fills them in. Every value is
+D-3DGS MLP, "liquid" for the CfC / SDE fields: the family a field registers with, fields/registry.py);
+`resolved()` fills them in. A field registered without a family (hexplane, plugins) takes its sizes
+from its own preset, and a config that sets any of these options for it is refused. Every value is
 checked when the config is built, so a bad setting fails early with a ConfigError.
 """
 

@@ -97,7 +97,8 @@ class TrainConfig:
     """Stop when the smoothed training PSNR falls this far below its best since the last scheduled
     disturbance (opacity reset, SH degree step, end of warm-up, densification burst)."""
     field_options: FieldOptions = dataclasses.field(default_factory=FieldOptions)
-    """Field sizes and noise variants (name, preset and lambda come from the flags above)."""
+    """Sizes and noise variants of the built-in fields (name, preset and lambda come from the flags
+    above); a field outside the built-in families is sized by its preset alone."""
     perturb: PerturbConfig = dataclasses.field(default_factory=PerturbConfig)
     """Stress tests: corrupt or thin out the training split (test views stay clean)."""
     optim: OptimConfig = dataclasses.field(default_factory=OptimConfig)
