@@ -4,8 +4,14 @@ from pathlib import Path
 import pytest
 import torch
 
+from field_plugins import own_entry_points
 from liquidgs.data import generate_synthetic
+from liquidgs.fields import registry
 from shared_data import lpips_weights_dir
+
+# Every test sees the built-in fields and liquidgs' own entry points (hexplane), whatever the
+# installed metadata lists: the entry-point table is mocked, see field_plugins.py.
+registry.REGISTRY = registry.FieldRegistry(own_entry_points)
 
 
 @pytest.fixture

@@ -13,7 +13,7 @@ def test_demo_writes_the_report(tmp_path, monkeypatch, capsys):
     out = tmp_path / "report"
     assert cli(["demo", "--out", str(out), "--size", "32", "--iterations", "30"]) == 0
     report = (out / "report.md").read_text()
-    for label in ("Static", "D-3DGS (MLP)", "Liquid CfC", "SDE-LNN"):  # fields/config.py FIELD_LABELS
+    for label in ("Static", "D-3DGS (MLP)", "Liquid CfC", "SDE-LNN"):  # the registered labels
         assert f"| {label} |" in report
     assert "| field | PSNR | moving-region PSNR |" in report and "of the test pixels" in report
     assert "**final**" in report and "Fastest-moving test frame" in report

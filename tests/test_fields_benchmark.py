@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from liquidgs.errors import ConfigError
-from liquidgs.fields import FIELD_NAMES
+from liquidgs.fields import field_names
 from liquidgs.fields.benchmark import VARIANTS, main
 
 
@@ -23,7 +23,7 @@ def test_json_rows_cover_every_field_and_size(capsys):
     argv += ["--threads", "1"]
     assert main(argv) == 0
     rows = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
-    labels = list(FIELD_NAMES) + list(VARIANTS)
+    labels = list(field_names()) + list(VARIANTS)
     assert [(r["field"], r["gaussians"]) for r in rows] == [(f, n) for f in labels for n in (64, 128)]
     for row in rows:
         assert row["device"] == "cpu" and row["torch"] and row["threads"] == 1 and row["preset"] == "tiny"
@@ -31,8 +31,11 @@ def test_json_rows_cover_every_field_and_size(capsys):
         if row["field"] == "static":
             assert row["params"] == 0 and row["forward_backward_gaussians_per_s"] is None
         else:
-            assert row["params"] > 0 and row["flops_per_gaussian"] > 2 * row["params"] * 0.9
-            assert row["forward_backward_gaussians_per_s"] > 0
+            assert row["params"] > 0 and row["forward_backward_gaussians_per_s"] > 0
+            # Nearly every parameter of a network field is multiplied once per Gaussian; a grid's
+            # are looked up (4 corners of 6 planes), which FLOPs do not count.
+            network_share = 0.01 if row["field"] == "hexplane" else 0.9
+            assert row["flops_per_gaussian"] > 2 * row["params"] * network_share
         assert row["lambda"] == (0.05 if row["field"].startswith("sde") else 0.0)
 
 

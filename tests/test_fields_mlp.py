@@ -4,7 +4,7 @@ import pytest
 import torch
 
 from field_reference import assert_matches_with_gradients
-from liquidgs.fields import FIELD_NAMES, FieldConfig, PositionalEncoding, build_field
+from liquidgs.fields import FieldConfig, PositionalEncoding, build_field, field_names
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
@@ -61,7 +61,7 @@ def test_shallow_mlp_has_no_skip():
         assert field(torch.zeros(4, 3), 0.5)[0].shape == (4, 3)
 
 
-@pytest.mark.parametrize("name", FIELD_NAMES)
+@pytest.mark.parametrize("name", field_names())
 def test_output_shapes_and_time_broadcasting(name):
     torch.manual_seed(0)
     field = build_field(FieldConfig(name=name, preset="tiny")).eval()

@@ -7,10 +7,10 @@ import pytest
 import torch
 
 from liquidgs.fields import (
-    FIELD_NAMES,
     CfCCell,
     FieldConfig,
     build_field,
+    field_names,
     ou_std,
     ou_transition,
     schedule_factor,
@@ -177,7 +177,7 @@ def test_monte_carlo_gives_uncertainty_only_for_noisy_fields():
         sde.monte_carlo(xyz, 0.6, samples=1)
 
 
-VARIANTS = [dict(name=name) for name in FIELD_NAMES] + [
+VARIANTS = [dict(name=name) for name in field_names()] + [
     dict(name="sde", adaptive_lambda=True),
     dict(name="sde", lambda_schedule="cosine", lambda_decay_steps=100),
     dict(name="sde", noise="ou", adaptive_lambda=True),

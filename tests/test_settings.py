@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import warnings
 from pathlib import Path
 
@@ -82,7 +83,6 @@ def test_flags_round_trip_through_to_flags():
     [
         (["--iterations", "lots"], "--iterations: expected an integer, got 'lots'"),
         (["--bogus", "1"], "unrecognized arguments: --bogus 1"),
-        (["--field", "nerf"], "--field: unknown field 'nerf' (choose from static, mlp, cfc, sde)"),
         (["--iterations"], "argument --iterations: expected one argument"),
         (["--iter", "3"], "unrecognized arguments: --iter 3"),  # no abbreviations: a typo never lands elsewhere
     ],
@@ -91,6 +91,14 @@ def test_usage_errors_are_one_line(argv, message):
     with pytest.raises(ConfigError) as err:
         parse_flag_settings(TrainConfig, ["--data", "x", *argv], "t")
     assert str(err.value) == message
+
+
+def test_the_field_is_checked_against_the_registry_when_the_config_is_built():
+    # A plugin's field is a name no type annotation can list: flags take any name, the config refuses.
+    assert parse_flag_settings(TrainConfig, ["--data", "x", "--field", "nerf"], "t")["field"] == "nerf"
+    with pytest.raises(ConfigError) as err:
+        dataclasses.replace(preset_config("tiny", Path("scene")), field="nerf")
+    assert str(err.value) == "unknown field 'nerf' (choose from static, mlp, cfc, sde, hexplane)"
 
 
 def test_a_positional_argument_and_a_missing_required_one():

@@ -294,7 +294,7 @@ def test_a_yaml_stress_spec_runs_variants_and_perturbations_on_a_synthetic_scene
 @pytest.mark.parametrize(
     ("extra", "message"),
     [
-        ({"variants": {"x": {"field": "nerf"}}}, "variants.x.field' names unknown field 'nerf'"),
+        ({"variants": {"x": {"field": "nerf"}}}, "variants.x.field': unknown field 'nerf'"),
         ({"variants": {"x": {"field": "sde", "lam": 1}}}, "unknown key 'lam'"),
         ({"variants": {"x": {"field": "sde"}}, "fields": ["mlp"]}, "either 'variants' or 'fields'"),
         ({"perturb": {"blur": [0, 1]}}, "unknown perturbation 'blur'"),

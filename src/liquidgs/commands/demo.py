@@ -29,7 +29,7 @@ from liquidgs.eval.lpips import metric_name
 from liquidgs.eval.regions import region_psnr, region_share
 from liquidgs.experiments.plan import RunEntry, run_config
 from liquidgs.experiments.runner import RunOutcome, default_parallel, run_local
-from liquidgs.fields.config import FIELD_LABELS, FIELD_NAMES
+from liquidgs.fields.registry import field_label
 from liquidgs.media import labelled, to_uint8, write_png, write_video
 from liquidgs.settings import parse_flags, to_dict
 from liquidgs.train.config import stretched_schedule
@@ -44,8 +44,9 @@ DENSIFY_GRAD_THRESHOLD = 0.0014
 """Twice the tiny preset's: a 64 px image needs fewer Gaussians. Measured (MLP, 2,000
 iterations): 3,920 Gaussians instead of 7,912 at the same PSNR (25.81 vs 25.90 dB), half
 the time per step."""
-FIELDS = FIELD_NAMES
-"""The runs of the demo, every field: the static model is the floor the deformation fields must beat."""
+FIELDS = ("static", "mlp", "cfc", "sde")
+"""The runs of the demo, the paper's fields: the static model is the floor the deformation fields must
+beat. Other registered fields (hexplane, plugins) are compared by experiment specs."""
 
 
 @dataclass
@@ -155,14 +156,14 @@ def write_report(args: DemoArgs, runs: dict[str, Path], data_path: Path) -> Path
     index = fastest_moving_frame(loaded["mlp"], frames)
     frame = frames[index]
     panels = [labelled(enlarged(frame.image_uint8()), "ground truth")]
-    panels += [labelled(render(run, frame, frame.time), FIELD_LABELS[n]) for n, run in loaded.items()]
+    panels += [labelled(render(run, frame, frame.time), field_label(n)) for n, run in loaded.items()]
     write_png(args.out / "side_by_side.png", np.concatenate(panels, axis=1))
 
     fixed = frames[0]
     sweep = []
     for i in range(48):
         t = i / 47
-        row = [labelled(render(run, fixed, t), f"{FIELD_LABELS[n]} t={t:.2f}") for n, run in loaded.items()]
+        row = [labelled(render(run, fixed, t), f"{field_label(n)} t={t:.2f}") for n, run in loaded.items()]
         sweep.append(np.concatenate(row, axis=1))
     write_video(args.out / "sweep.mp4", sweep, fps=12)
 
@@ -199,7 +200,7 @@ def write_report(args: DemoArgs, runs: dict[str, Path], data_path: Path) -> Path
         scores = (f"{fmt(final['psnr'], 2)} | {fmt(moving[name], 2)} | {fmt(final['ssim'], 4)} | "
                   f"{fmt(final.get('lpips'), 4)}")  # fmt: skip
         cost = f"{res.field_parameters:,} | {res.fps:.1f} | {res.train_seconds:.0f} | {res.num_gaussians:,}"
-        lines.append(f"| {FIELD_LABELS[name]} | {scores} | {cost} |")
+        lines.append(f"| {field_label(name)} | {scores} | {cost} |")
     lines += [
         "",
         f"Moving-region PSNR: over the test pixels whose ground truth changes between neighbouring frames "
@@ -209,7 +210,7 @@ def write_report(args: DemoArgs, runs: dict[str, Path], data_path: Path) -> Path
         lpips_desc + ".",
         "",
         f"![side by side](side_by_side.png) Fastest-moving test frame `{frame.name}` (t = {frame.time:.3f}): "
-        "ground truth | " + " | ".join(FIELD_LABELS.values()) + ".",
+        "ground truth | " + " | ".join(map(field_label, FIELDS)) + ".",
         "",
         "`sweep.mp4`: the runs side by side, time 0 -> 1, from test camera "
         f"`{fixed.name}`. Runs: " + ", ".join(f"`{p}`" for p in runs.values()) + ".",

@@ -1,6 +1,6 @@
 """`liquidgs train`: train a dynamic scene with a deformation field.
 
-    liquidgs train --data PATH --field {static,mlp,cfc,sde} [--preset NAME] [--lambda L]
+    liquidgs train --data PATH --field NAME [--preset NAME] [--lambda L]
                    [--iterations N] [--downscale K] [--seed S] [--out DIR] [--resume]
     liquidgs train --config FILE [--out DIR] [--resume]
 

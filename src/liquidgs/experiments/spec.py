@@ -41,7 +41,8 @@ import yaml
 from liquidgs import settings
 from liquidgs.data import SYNTHETIC_SCENES, PerturbConfig
 from liquidgs.errors import ConfigError
-from liquidgs.fields.config import FIELD_NAMES, PAPER_LAMBDA, PRESET_NAMES, FieldConfig, default_lambda
+from liquidgs.fields.config import PAPER_LAMBDA, PRESET_NAMES, FieldConfig, default_lambda
+from liquidgs.fields.registry import field_type
 
 GRID_KEYS = ("dataset", "preset", "scenes", "fields", "lambdas", "variants", "perturb", "seeds", "overrides")
 VARIANT_KEYS = ("field", "lambda", "overrides")
@@ -327,8 +328,10 @@ def _as_tuple(value, key: str, source: str, kind) -> tuple:
 
 
 def _check_field(name, source: str, key: str) -> None:
-    if name not in FIELD_NAMES:
-        raise ConfigError(f"{source}: '{key}' names unknown field '{name}' (choose from {', '.join(FIELD_NAMES)})")
+    try:
+        field_type(name)
+    except ConfigError as error:  # unknown, or registered by two packages
+        raise ConfigError(f"{source}: '{key}': {error}") from None
 
 
 def _check_lambda(lam: float, source: str, key: str) -> None:

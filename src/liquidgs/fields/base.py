@@ -10,10 +10,18 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from liquidgs.fields.config import FieldConfig
+from liquidgs.errors import LiquidGSError
 from liquidgs.fields.encoding import time_column
 
 Deltas = tuple[torch.Tensor, torch.Tensor, torch.Tensor]
+DELTA_WIDTHS = {"d_xyz": 3, "d_rotation": 4, "d_scaling": 3}
+"""Columns of each delta, in the order a field returns them."""
+PROBE_POINTS = 8
+"""Initial means a field is first run on by begin_training, to check its outputs' shapes."""
+
+
+class FieldContractError(LiquidGSError):
+    """A field's output breaks the contract (fields/registry.py)."""
 
 
 def linear_flops(module: nn.Module) -> int:
@@ -40,12 +48,14 @@ class DeformationField(nn.Module, abc.ABC):
 
     The field applies the stop-gradient on xyz itself, so it never passes gradients to the
     Gaussians' means. Noise (stochastic fields only) is active in training mode, and inside
-    `monte_carlo` whatever the mode.
+    `monte_carlo` whatever the mode. The full contract, hooks included: fields/registry.py.
     """
 
-    def __init__(self, config: FieldConfig):
+    def __init__(self, config):
         super().__init__()
         self.config = config.resolved()
+        self.name = type(self).__name__
+        """The registered name (build_field sets it), for error messages."""
         self.progress_step = 0
         self._noise_forced = False
 
@@ -53,7 +63,20 @@ class DeformationField(nn.Module, abc.ABC):
         if xyz.dim() != 2 or xyz.shape[1] != 3:
             raise ValueError(f"xyz must have shape [N, 3], got {tuple(xyz.shape)}")
         xyz = xyz.detach()
-        return self.deltas(xyz, time_column(t, xyz.shape[0], xyz))
+        deltas = self.deltas(xyz, time_column(t, xyz.shape[0], xyz))
+        self._check_deltas(deltas, xyz.shape[0])
+        return deltas
+
+    def _check_deltas(self, deltas, n: int) -> None:
+        if isinstance(deltas, tuple | list):
+            got = [tuple(d.shape) if isinstance(d, torch.Tensor) else type(d).__name__ for d in deltas]
+        else:
+            got = type(deltas).__name__
+        if got != [(n, width) for width in DELTA_WIDTHS.values()]:
+            contract = ", ".join(f"{key} [N, {width}]" for key, width in DELTA_WIDTHS.items())
+            raise FieldContractError(
+                f"field '{self.name}' returned {got} for N = {n} points; a field returns ({contract})"
+            )
 
     @abc.abstractmethod
     def deltas(self, xyz: torch.Tensor, t: torch.Tensor) -> Deltas:
@@ -71,6 +94,27 @@ class DeformationField(nn.Module, abc.ABC):
 
     def num_parameters(self) -> int:
         return sum(p.numel() for p in self.parameters())
+
+    def setup(self, xyz: torch.Tensor) -> None:
+        """Optional hook: set the field up from the initial means [N, 3] before training (hexplane:
+        its grid box). State it sets must be a parameter or a persistent buffer (checkpointed)."""
+
+    def regulariser_loss(self) -> torch.Tensor | None:
+        """Optional hook: a scalar loss term the trainer adds at every step after the warm-up."""
+        return None
+
+    @torch.no_grad()
+    def begin_training(self, xyz: torch.Tensor) -> None:
+        """What the trainer calls before the first step: `setup`, then one eval-mode pass on a few
+        of the means, so a field that breaks the output contract fails now with its name (eval
+        mode draws no noise: the run's random numbers are untouched)."""
+        self.setup(xyz)
+        training = self.training
+        self.eval()
+        try:
+            self(xyz[:PROBE_POINTS], 0.0)
+        finally:
+            self.train(training)
 
     def set_progress(self, step: int) -> None:
         """Record the training step (drives annealed noise schedules; otherwise unused)."""

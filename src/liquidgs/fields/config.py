@@ -1,7 +1,9 @@
 """FieldConfig: every size and noise setting of a deformation field, with per-dataset presets.
 
 A setting left at None takes its value from the preset of the field's family ("mlp" for the
-D-3DGS MLP, "liquid" for the CfC / SDE fields); `resolved()` fills them in. Every value is
+D-3DGS MLP, "liquid" for the CfC / SDE fields: the family a field registers with, fields/registry.py);
+`resolved()` fills them in. A field registered without a family (hexplane, plugins) takes its sizes
+from its own preset, and a config that sets any of these options for it is refused. Every value is
 checked when the config is built, so a bad setting fails early with a ConfigError.
 """
 
@@ -13,11 +15,8 @@ from dataclasses import dataclass
 from typing import Literal
 
 from liquidgs.errors import ConfigError
+from liquidgs.fields.registry import field_type
 
-FIELD_LABELS = {"static": "Static", "mlp": "D-3DGS (MLP)", "cfc": "Liquid CfC", "sde": "SDE-LNN"}
-"""Every field, in the order tables list them, with the name tables and figures show."""
-FIELD_NAMES = tuple(FIELD_LABELS)
-FieldName = Literal[FIELD_NAMES]  # type: ignore[valid-type]
 PRESET_NAMES = ("dnerf", "nerfds", "tiny")
 """The presets: sizes here, and the training schedules of train/config.py, share these names."""
 PresetName = Literal[PRESET_NAMES]  # type: ignore[valid-type]
@@ -89,16 +88,12 @@ PRESETS: dict[str, dict[str, dict[str, int | str]]] = {
 }
 
 _SHARED_SIZES = ("xyz_freqs", "time_freqs", "timenet_width", "timenet_out")
-_FAMILY_SIZES = {
+FAMILY_SIZES = {
     "static": (),
     "mlp": _SHARED_SIZES + ("mlp_depth", "mlp_width"),
     "liquid": _SHARED_SIZES + ("cells", "hidden", "backbone_units", "backbone_layers", "activation"),
 }
-
-
-def family(name: str) -> str:
-    """Which preset family a field name draws its sizes from."""
-    return {"static": "static", "mlp": "mlp", "cfc": "liquid", "sde": "liquid"}[name]
+"""The FieldOptions sizes each built-in family reads (a field registers its family, fields/registry.py)."""
 
 
 @dataclass
@@ -153,7 +148,8 @@ class FieldOptions:
 class FieldConfig(FieldOptions):
     """Settings of one deformation field, validated when built."""
 
-    name: FieldName = "cfc"
+    name: str = "cfc"
+    """A registered field (fields/registry.py)."""
     preset: PresetName = "dnerf"
     lambda_: float | None = None
     """Noise level of the 'sde' field (None: 0.05, the paper's value); must be 0 for the others."""
@@ -175,11 +171,24 @@ class FieldConfig(FieldOptions):
         return dataclasses.replace(self, **self._resolved_values(), lambda_=self.base_lambda)
 
     def _resolved_values(self) -> dict:
-        check_choice("field", self.name, FIELD_NAMES)
+        kind = field_type(self.name)
         check_choice("preset", self.preset, PRESET_NAMES)
-        fam = family(self.name)
-        defaults = PRESETS[self.preset].get(fam, {})
-        return {key: defaults[key] if getattr(self, key) is None else getattr(self, key) for key in _FAMILY_SIZES[fam]}
+        if self.preset not in kind.presets:
+            raise ConfigError(f"field '{self.name}' has no preset '{self.preset}' (it has {', '.join(kind.presets)})")
+        if kind.family is None:
+            # A field outside the built-in families is sized by its preset alone.
+            changed = [f.name for f in dataclasses.fields(FieldOptions) if getattr(self, f.name) != f.default]
+            if changed:
+                raise ConfigError(
+                    f"field '{self.name}' takes its sizes from its preset; --field-options "
+                    f"({', '.join(changed)}) apply to the built-in fields only"
+                )
+            return {}
+        defaults = PRESETS[self.preset].get(kind.family, {})
+        return {
+            key: defaults[key] if getattr(self, key) is None else getattr(self, key)
+            for key in FAMILY_SIZES[kind.family]
+        }
 
     def _validate(self, values: dict) -> None:
         lam = self.base_lambda

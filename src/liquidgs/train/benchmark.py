@@ -21,7 +21,7 @@ import torch
 
 from liquidgs.data import DEFAULT_SYNTHETIC_SCENE, DataConfig, generate_synthetic
 from liquidgs.errors import ConfigError
-from liquidgs.fields.config import FIELD_NAMES, PRESET_NAMES
+from liquidgs.fields.config import PRESET_NAMES
 from liquidgs.render import BACKENDS
 from liquidgs.render.benchmark import machine_description
 from liquidgs.settings import ArgumentParser, with_settings
@@ -38,7 +38,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--size", type=int, default=128, help="built-in scene's image size")
     parser.add_argument("--downscale", type=int, help="image downscale of --data")
     parser.add_argument("--preset", default="tiny", choices=PRESET_NAMES)
-    parser.add_argument("--field", default="mlp", choices=FIELD_NAMES)
+    parser.add_argument("--field", default="mlp", help="a registered field (checked by TrainConfig)")
     parser.add_argument("--backend", default="auto", choices=BACKENDS)
     parser.add_argument("--device", default="auto")
     parser.add_argument("--from-step", type=int, default=700, help="untimed steps first (default 700)")

@@ -20,7 +20,7 @@ from liquidgs.data.perturb import PerturbConfig
 from liquidgs.data.scene import DataConfig
 from liquidgs.errors import ConfigError
 from liquidgs.fields import FieldConfig, FieldOptions
-from liquidgs.fields.config import PRESET_NAMES, FieldName, PresetName, check_choice
+from liquidgs.fields.config import PRESET_NAMES, PresetName, check_choice
 from liquidgs.render import BACKENDS
 from liquidgs.settings import to_dict, with_settings
 from liquidgs.train.strategy import DensifyConfig
@@ -67,8 +67,9 @@ class EvalConfig:
 class TrainConfig:
     data: Annotated[DataConfig, tyro.conf.OmitArgPrefixes]
     """The scene and how to read it (--data PATH, --downscale, --background, ...)."""
-    field: FieldName = "mlp"
-    """Deformation field; 'static' = no deformation, the floor every field must beat."""
+    field: str = "mlp"
+    """Deformation field: static (no deformation, the floor every field must beat), mlp, cfc, sde,
+    or any other registered field (liquidgs.fields.register; an unknown name lists them)."""
     preset: PresetName = "dnerf"
     lambda_: Annotated[float | None, tyro.conf.arg(name="lambda")] = None
     """Gate-noise level of the 'sde' field (default 0.05, the paper's calibrated value)."""
@@ -97,7 +98,8 @@ class TrainConfig:
     """Stop when the smoothed training PSNR falls this far below its best since the last scheduled
     disturbance (opacity reset, SH degree step, end of warm-up, densification burst)."""
     field_options: FieldOptions = dataclasses.field(default_factory=FieldOptions)
-    """Field sizes and noise variants (name, preset and lambda come from the flags above)."""
+    """Sizes and noise variants of the built-in fields (name, preset and lambda come from the flags
+    above); a field outside the built-in families is sized by its preset alone."""
     perturb: PerturbConfig = dataclasses.field(default_factory=PerturbConfig)
     """Stress tests: corrupt or thin out the training split (test views stay clean)."""
     optim: OptimConfig = dataclasses.field(default_factory=OptimConfig)

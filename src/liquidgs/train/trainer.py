@@ -106,6 +106,7 @@ class Trainer:
         self.camera_rng = np.random.default_rng(cfg.seed)
         self.params = self._initial_gaussians().to(self.device)
         self.field = build_field(cfg.field_config()).to(self.device)
+        self.field.begin_training(self.params["means"].detach())  # its set-up hook; checks its outputs
         self.optimizers = {
             key: self._adam([self.params[key]], self._static_lr(key)) for key in PARAM_KEYS
         }
@@ -232,6 +233,9 @@ class Trainer:
         clock.mark("raster_forward")
         l1 = (out.rgb - gt).abs().mean()
         loss = (1.0 - cfg.ssim_weight) * l1 + cfg.ssim_weight * (1.0 - ssim(out.rgb, gt))
+        regulariser = self.field.regulariser_loss() if use_field else None  # the field's own term
+        if regulariser is not None:
+            loss = loss + regulariser
         if not torch.isfinite(loss):
             raise self._diverged(f"non-finite loss at iteration {step}")
         clock.mark("loss_forward")

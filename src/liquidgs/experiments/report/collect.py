@@ -15,7 +15,7 @@ from pathlib import Path
 
 from liquidgs.errors import LiquidGSError
 from liquidgs.experiments.plan import Experiment, RunEntry, read_manifest
-from liquidgs.fields.config import FIELD_LABELS, FIELD_NAMES
+from liquidgs.fields.registry import field_label, field_names, field_type
 from liquidgs.train.config import TrainConfig, load_yaml
 from liquidgs.train.run_folder import CONFIG, PER_VIEW, RESULTS, check_results_format
 
@@ -33,20 +33,21 @@ class Method:
 
     @classmethod
     def of(cls, field: str, lambda_: float) -> Method:
-        return cls(FIELD_NAMES.index(field), lambda_ if field == "sde" else 0.0)
+        field_type(field)  # a run of a field no longer registered: one line, the registered ones
+        return cls(field_names().index(field), lambda_ if field == "sde" else 0.0)
 
     @property
     def field(self) -> str:
-        return FIELD_NAMES[self.field_rank]
+        return field_names()[self.field_rank]
 
     @property
     def label(self) -> str:
-        base = FIELD_LABELS[self.field]
+        base = field_label(self.field)
         return f"{base} (lambda {self.lambda_:g})" if self.field == "sde" else base
 
     @property
     def latex_label(self) -> str:
-        base = FIELD_LABELS[self.field]
+        base = field_label(self.field)
         return f"{base} ($\\lambda{{=}}{self.lambda_:g}$)" if self.field == "sde" else base
 
 

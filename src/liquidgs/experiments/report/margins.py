@@ -30,7 +30,7 @@ from liquidgs.experiments.report.references import MEAN
 from liquidgs.experiments.report.stress import is_paper_run
 from liquidgs.experiments.report.tables import PlainTable
 from liquidgs.experiments.spec import SyntheticScene
-from liquidgs.fields.config import FIELD_LABELS
+from liquidgs.fields.registry import field_label, field_names
 from liquidgs.media import to_uint8
 from liquidgs.train.run import load_run, load_run_dataset
 
@@ -239,7 +239,7 @@ def margin_sentences(
                 span = f"{cells[low].mean:+.2f} dB"
             parts.append(f"{REGION_TEXT[region]} {span}: {tally}")
         if parts:
-            lines.append(f"- {dataset}, {FIELD_LABELS[field]} minus static: " + "; ".join(parts) + ".")
+            lines.append(f"- {dataset}, {field_label(field)} minus static: " + "; ".join(parts) + ".")
     return lines
 
 
@@ -269,11 +269,11 @@ def margin_section(collection: Collection, md: list[str], tex: list[str], device
         by_scene = {scene: margins[(dataset, scene)] for scene in names}
         if not by_scene:
             continue
-        fields = sorted({f for m in by_scene.values() for f, _ in m.margins}, key=list(FIELD_LABELS).index)
+        fields = sorted({f for m in by_scene.values() for f, _ in m.margins}, key=field_names().index)
         regions = [r for r in REGIONS if any(r in m.static for m in by_scene.values())]
         header = ["scene", *(f"{r} share" for r in regions if r != "whole")]
         header += [f"static {r} PSNR" for r in regions]
-        header += [f"{FIELD_LABELS[f]} - static, {r}" for f in fields for r in regions]
+        header += [f"{field_label(f)} - static, {r}" for f in fields for r in regions]
         table = PlainTable(header)
         for scene, m in by_scene.items():
             known = shares.get((dataset, scene), {})
