@@ -9,8 +9,8 @@ SRC = Path(__file__).resolve().parents[1] / "src"
 
 
 def import_graph() -> dict[str, set[str]]:
-    """Module -> the liquidgs modules it imports. `from package import module` counts as the
-    module only, so a package __init__ re-exporting its modules makes no cycle."""
+    """Module -> the liquidgs modules it imports when it runs. `from package import module` counts
+    as the module only, so a package __init__ re-exporting its modules makes no cycle."""
     files = {}
     for path in (SRC / "liquidgs").rglob("*.py"):
         parts = path.relative_to(SRC).with_suffix("").parts
@@ -18,7 +18,11 @@ def import_graph() -> dict[str, set[str]]:
     graph = {}
     for name, path in files.items():
         deps = set()
-        for node in ast.walk(ast.parse(path.read_text())):
+        tree = ast.parse(path.read_text())
+        # Imports under `if TYPE_CHECKING:` never run (annotations only), so they make no circle.
+        for block in [n for n in ast.walk(tree) if isinstance(n, ast.If) and ast.unparse(n.test) == "TYPE_CHECKING"]:
+            block.body = []
+        for node in ast.walk(tree):
             if isinstance(node, ast.ImportFrom) and node.module and node.module.split(".")[0] == "liquidgs":
                 submodules = {f"{node.module}.{alias.name}" for alias in node.names} & files.keys()
                 deps |= submodules if len(submodules) == len(node.names) else submodules | {node.module}

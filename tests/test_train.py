@@ -230,7 +230,7 @@ def test_unknown_field_and_preset_are_one_line_errors(small_scene, tmp_path, cap
     assert cli(["train", "--data", str(small_scene), "--preset", "huge", "--out", str(tmp_path / "a")]) == 2
     assert "unknown preset 'huge'" in one_line_error(capsys)
     assert cli(["train", "--data", str(small_scene), "--field", "transformer", "--out", str(tmp_path / "b")]) == 2
-    assert "unknown field 'transformer' (choose from static, mlp, cfc, sde)" in one_line_error(capsys)
+    assert "unknown field 'transformer' (choose from static, mlp, cfc, sde, hexplane)" in one_line_error(capsys)
     assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
 
 

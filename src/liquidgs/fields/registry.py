@@ -42,6 +42,7 @@ unusable, with one line naming both.
 
 from __future__ import annotations
 
+import importlib
 import importlib.metadata
 import sys
 from collections.abc import Callable, Collection, Iterable
@@ -49,6 +50,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from liquidgs.errors import ConfigError, one_line
+from liquidgs.fields.presets import FAMILY_SIZES, PRESET_NAMES
 
 if TYPE_CHECKING:
     from liquidgs.fields.base import DeformationField
@@ -56,6 +58,8 @@ if TYPE_CHECKING:
 
 ENTRY_POINT_GROUP = "liquidgs.fields"
 BUILTIN_PACKAGE = "liquidgs"
+BUILTIN_REGISTRATIONS = "liquidgs.fields.builtin"
+"""The module whose register_builtin_fields() registers the built-in fields."""
 
 
 class NameTaken(ConfigError):
@@ -109,8 +113,6 @@ class FieldRegistry:
         label: str | None = None,
         family: str | None = None,
     ) -> None:
-        from liquidgs.fields.config import FAMILY_SIZES, PRESET_NAMES
-
         package = self._package or getattr(factory, "__module__", "?").split(".")[0]
         if not (isinstance(name, str) and name.isidentifier() and name.islower()):
             raise ConfigError(f"a field name must be a lowercase identifier, got {name!r}")
@@ -136,11 +138,10 @@ class FieldRegistry:
         if self._loaded:
             return
         self._loaded = True  # first: a plugin's own reads of the registry must not load it again
-        from liquidgs.fields.build import register_builtin_fields
-
         self._package = BUILTIN_PACKAGE
         try:
-            register_builtin_fields()
+            # Loaded by name, as a plugin's entry point is: the registry depends on no field.
+            importlib.import_module(BUILTIN_REGISTRATIONS).register_builtin_fields()
         finally:
             self._package = None
         try:
