@@ -387,5 +387,15 @@ def test_ray_missing_is_one_clear_line(monkeypatch, data_root, tmp_path):
 
 def test_mini_spec_expands_on_the_shared_scenes(tmp_path):
     experiment = expand(load_spec("mini"), require_shared(DNERF_ROOT), tmp_path / "mini")
-    assert len(experiment.runs) == 12
+    assert len(experiment.runs) == 16 and {r.field for r in experiment.runs} == {"mlp", "cfc", "sde", "hexplane"}
     assert {r.scene for r in experiment.runs} == {"bouncingballs", "hellwarrior", "lego", "standup"}
+
+
+def test_families_are_margins_with_every_family_and_share_its_runs(tmp_path):
+    root = require_shared(DNERF_ROOT).parent
+    margins = expand(load_spec("margins"), root, tmp_path / "margins")
+    families = expand(load_spec("families"), root, tmp_path / "families")
+    assert len(families.runs) == 90 and {r.field for r in families.runs} == {"static", "mlp", "cfc", "sde", "hexplane"}
+    # The D-NeRF runs are margins' (a built-in scene is generated in each experiment's own folder).
+    shared = {r.run_dir for r in margins.runs if r.dataset == "dnerf"}
+    assert len(shared) == 36 and shared < {r.run_dir for r in families.runs}
