@@ -13,7 +13,7 @@ def test_demo_writes_the_report(tmp_path, monkeypatch, capsys):
     out = tmp_path / "report"
     assert cli(["demo", "--out", str(out), "--size", "32", "--iterations", "30"]) == 0
     report = (out / "report.md").read_text()
-    for label in ("Static", "D-3DGS (MLP)", "Liquid CfC", "SDE-LNN"):  # the registered labels
+    for label in ("Static", "D-3DGS (MLP)", "Liquid CfC", "SDE-LNN", "HexPlane (4D-GS)"):  # every registered field
         assert f"| {label} |" in report
     assert "| field | PSNR | moving-region PSNR |" in report and "of the test pixels" in report
     assert "**final**" in report and "Fastest-moving test frame" in report
@@ -22,11 +22,11 @@ def test_demo_writes_the_report(tmp_path, monkeypatch, capsys):
     else:
         assert "LPIPS-Alex unavailable: backbone weights not found" in report
     side_by_side = np.asarray(Image.open(out / "side_by_side.png"))
-    assert side_by_side.shape[:2] == (128, 5 * 128)  # 32 px enlarged 4x: truth, static, MLP, CfC, SDE-LNN
+    assert side_by_side.shape[:2] == (128, 6 * 128)  # 32 px enlarged 4x: truth, static, MLP, CfC, SDE-LNN, HexPlane
     assert len(imageio.mimread(out / "sweep.mp4")) == 48
     # Each run trained as its own `liquidgs train` process, with its command and output in a log.
     logs = sorted((out / "logs").glob("*.log"))
-    assert len(logs) == 4 and all("liquidgs.cli train" in log.read_text() for log in logs)
+    assert len(logs) == 5 and all("liquidgs.cli train" in log.read_text() for log in logs)
     assert f"report written to {out.resolve()}" in capsys.readouterr().err.replace("\n", "")
     # Finished runs are reused: a second demo trains nothing and rewrites the same table.
     first = report

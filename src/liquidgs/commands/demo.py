@@ -29,7 +29,7 @@ from liquidgs.eval.lpips import metric_name
 from liquidgs.eval.regions import region_psnr, region_share
 from liquidgs.experiments.plan import RunEntry, run_config
 from liquidgs.experiments.runner import RunOutcome, default_parallel, run_local
-from liquidgs.fields.registry import field_label
+from liquidgs.fields.registry import field_label, field_names, field_type
 from liquidgs.media import labelled, to_uint8, write_png, write_video
 from liquidgs.settings import parse_flags, to_dict
 from liquidgs.train.config import stretched_schedule
@@ -44,9 +44,13 @@ DENSIFY_GRAD_THRESHOLD = 0.0014
 """Twice the tiny preset's: a 64 px image needs fewer Gaussians. Measured (MLP, 2,000
 iterations): 3,920 Gaussians instead of 7,912 at the same PSNR (25.81 vs 25.90 dB), half
 the time per step."""
-FIELDS = ("static", "mlp", "cfc", "sde")
-"""The runs of the demo, the paper's fields: the static model is the floor the deformation fields must
-beat. Other registered fields (hexplane, plugins) are compared by experiment specs."""
+DEMO_PRESET = "tiny"
+
+
+def demo_fields() -> tuple[str, ...]:
+    """The runs of the demo: every registered field with a tiny preset (plugins included), in the
+    registry's order; the static model is the floor the deformation fields must beat."""
+    return tuple(name for name in field_names() if DEMO_PRESET in field_type(name).presets)
 
 
 @dataclass
@@ -72,16 +76,16 @@ def run_entry(args: DemoArgs, name: str, data_path: Path) -> RunEntry:
         "seed": args.seed,
         "device": args.device,
         "densify.grad_threshold": DENSIFY_GRAD_THRESHOLD,
-        **stretched_schedule("tiny", args.iterations),
+        **stretched_schedule(DEMO_PRESET, args.iterations),
     }
-    cfg = run_config("tiny", data_path, run_settings, f"demo run {name}")
+    cfg = run_config(DEMO_PRESET, data_path, run_settings, f"demo run {name}")
     return RunEntry(
         dataset="synthetic",
         scene=args.scene,
         field=name,
         lambda_=cfg.resolved_lambda(),
         seed=args.seed,
-        preset="tiny",
+        preset=DEMO_PRESET,
         data=str(data_path),
         run_dir=f"runs/{name}",
         config=to_dict(cfg),
@@ -90,14 +94,15 @@ def run_entry(args: DemoArgs, name: str, data_path: Path) -> RunEntry:
 
 def check_settings(args: DemoArgs) -> None:
     """Every run's settings, checked before the scene is generated."""
-    for name in FIELDS:
+    for name in demo_fields():
         run_entry(args, name, args.out)
 
 
 def train_fields(args: DemoArgs, data_path: Path, console: Console) -> dict[str, Path]:
     """Train the runs as `liquidgs train` subprocesses, --parallel at a time (finished runs are
-    kept, stopped ones resumed). The slowest runs start first, so the two CPU slots balance."""
-    entries = [run_entry(args, name, data_path) for name in ("sde", "cfc", "mlp", "static")]
+    kept, stopped ones resumed). The registry's last fields (the liquid ones, then plugins) start
+    first: the static model, the quickest, goes last, so the two CPU slots balance."""
+    entries = [run_entry(args, name, data_path) for name in reversed(demo_fields())]
 
     def report(outcome: RunOutcome) -> None:
         seconds = f" in {outcome.seconds:.0f} s" if outcome.status == "done" else ""
@@ -108,7 +113,7 @@ def train_fields(args: DemoArgs, data_path: Path, console: Console) -> dict[str,
     failed = [outcome for outcome in outcomes if outcome.status == "failed"]
     if failed:
         raise LiquidGSError(f"demo run {failed[0].name} failed ({failed[0].message}); its log: {failed[0].log}")
-    return {name: args.out / "runs" / name for name in FIELDS}
+    return {name: args.out / "runs" / name for name in demo_fields()}
 
 
 def fastest_moving_frame(run: TrainedRun, frames) -> int:
@@ -210,7 +215,7 @@ def write_report(args: DemoArgs, runs: dict[str, Path], data_path: Path) -> Path
         lpips_desc + ".",
         "",
         f"![side by side](side_by_side.png) Fastest-moving test frame `{frame.name}` (t = {frame.time:.3f}): "
-        "ground truth | " + " | ".join(map(field_label, FIELDS)) + ".",
+        "ground truth | " + " | ".join(map(field_label, demo_fields())) + ".",
         "",
         "`sweep.mp4`: the runs side by side, time 0 -> 1, from test camera "
         f"`{fixed.name}`. Runs: " + ", ".join(f"`{p}`" for p in runs.values()) + ".",
