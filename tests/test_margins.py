@@ -28,15 +28,19 @@ from liquidgs.experiments import (
     write_manifest,
 )
 from liquidgs.experiments.report import write_report
-from liquidgs.experiments.report.aggregate import Stat
 from liquidgs.experiments.report.collect import collect
 from liquidgs.experiments.report.margins import (
     RunScores,
     dataset_margin,
+    margin_difference,
+    margin_floor,
     margin_section,
+    margin_sentences,
     scene_margins,
     verdict,
 )
+from liquidgs.experiments.report.references import paper_sigma
+from liquidgs.experiments.report.significance import TOO_FEW, t_interval
 from liquidgs.experiments.runner import train_command
 from liquidgs.experiments.spec import MINI_SCHEDULE, SHARED_DNERF_SCENES
 from liquidgs.train.config import preset_config, save_yaml
@@ -124,12 +128,55 @@ def test_margins_are_paired_by_seed_with_mean_and_sample_std():
     cfc = a.margins[("cfc", "whole")]
     assert cfc.n == 1 and cfc.mean == pytest.approx(0.5) and cfc.std is None
     assert ("cfc", "moving") not in a.margins  # no moving score: no margin, not a zero
-    assert verdict(whole) == "gain" and verdict(margins[("d", "b")].margins[("mlp", "whole")]) == "one seed only"
-    assert verdict(Stat(-1.0, 0.2, 3)) == "loss" and verdict(Stat(0.3, 0.2, 3)) == "unclear"
+    assert a.static_runs["whole"] == [20.0, 21.0, 19.0]
     # the dataset margin: mean of the scene means; spread over the seeds both scenes finished (seed 0 only)
     both = dataset_margin([a, margins[("d", "b")]], "mlp", "whole")
     assert both.mean == pytest.approx((statistics.mean(diffs) - 1.0) / 2) and both.n == 1 and both.std is None
     assert dataset_margin([a, margins[("d", "b")]], "cfc", "whole") is None  # scene b has no cfc
+
+
+def many_scenes(margin: dict[str, list[float]], static_spread: float = 0.1) -> list:
+    """Scenes (name -> the field's margin per seed) over a static model whose PSNR moves by
+    +-static_spread between seeds."""
+    runs = []
+    for name, margins in margin.items():
+        for seed, value in enumerate(margins):
+            static = 20.0 + static_spread * (-1) ** seed
+            runs += [scores("d", name, "static", seed, static), scores("d", name, "mlp", seed, static + value)]
+    return list(scene_margins(runs).values())
+
+
+def test_a_margin_is_called_over_scene_seed_clusters_beyond_two_sigma():
+    # one scene of 3 seeds: a 5 dB margin is still too few runs to call (a sign-flip test of 3 cannot)
+    (one,) = many_scenes({"a": [5.0, 5.1, 4.9]})
+    floor, source = margin_floor([one], "whole")
+    sigma = statistics.stdev([20.1, 19.9, 20.1])
+    assert floor == pytest.approx(2 * sigma) and "pooled over 1 scenes (3 runs)" in source
+    assert verdict(margin_difference([one], "mlp", "whole", floor)) == TOO_FEW
+    # two scenes x 3 seeds = 6 clusters: called, on the t-interval of the six margins
+    scenes = many_scenes({"a": [1.0, 1.2, 0.9], "b": [1.1, 0.8, 1.0]})
+    floor, _ = margin_floor(scenes, "whole")
+    both = margin_difference(scenes, "mlp", "whole", floor)
+    mean, low, high = t_interval([1.0, 1.2, 0.9, 1.1, 0.8, 1.0])
+    assert (both.clusters, both.mean, both.low, both.high) == (6, pytest.approx(mean), pytest.approx(low),
+                                                               pytest.approx(high))  # fmt: skip
+    assert low > floor and verdict(both) == "gain"
+    by_scene = dict(zip("ab", scenes))
+    (sentence,) = margin_sentences("d", by_scene, ["mlp"], ["whole"], complete=True)
+    assert sentence == (f"- d, D-3DGS (MLP) minus static: whole image +0.97 (b) to +1.03 dB (a); per scene {TOO_FEW} "
+                        f"on a, b; over all 6 scene-seed runs +1.00 dB, t-interval {both.interval_text(2)}: gain.")
+    (partial,) = margin_sentences("d", by_scene, ["mlp"], ["whole"], complete=False)  # a scene of the dataset missing
+    assert "scene-seed runs" not in partial
+    # a margin whose interval reaches inside 2 sigma is a tie, however far its mean is from 0
+    close = many_scenes({"a": [0.3, 0.1, 0.5], "b": [0.2, 0.4, 0.0]})
+    difference = margin_difference(close, "mlp", "whole", margin_floor(close, "whole")[0])
+    assert difference.mean == pytest.approx(0.25) and difference.low > 0 and verdict(difference) == "tie"
+    lost = many_scenes({"a": [-1.0, -1.2, -0.9], "b": [-1.1, -0.8, -1.0]})
+    assert verdict(margin_difference(lost, "mlp", "whole", margin_floor(lost, "whole")[0])) == "loss"
+    # one static run per scene: no spread here, so the paper's sigma
+    single = many_scenes({"a": [1.0], "b": [1.0]})
+    floor, source = margin_floor(single, "whole")
+    assert floor == pytest.approx(2 * paper_sigma()[0]) and source.startswith("one static run per scene")
 
 
 def hand_built_margins(tmp_path: Path) -> Path:
@@ -152,7 +199,7 @@ def hand_built_margins(tmp_path: Path) -> Path:
     return directory
 
 
-def test_the_section_names_gains_and_unclear_margins(tmp_path):
+def test_the_section_states_each_margin_and_its_verdict(tmp_path):
     collection = collect(hand_built_margins(tmp_path))
 
     def fake_render(collection, device):
@@ -173,9 +220,12 @@ def test_the_section_names_gains_and_unclear_margins(tmp_path):
     cells = f"+0.05 ± 0.00 | +{statistics.mean(cfc):.2f} ± {statistics.stdev(cfc):.2f}"
     assert f"| hook | 25.0% | 20.10 ± 0.10 | 17.10 ± 0.10 | +2.00 ± 0.00 | +2.00 ± 0.00 | {cells} |" in text
     assert "| mean |" not in text  # one scene: no mean row
-    assert "D-3DGS (MLP) minus static: whole image +2.00 dB: gain on hook; foreground (alpha > 0) +2.00 dB" in text
-    assert "Liquid CfC minus static: whole image +0.05 dB: gain on hook; foreground (alpha > 0) +0.38 dB: unclear" \
-        in text
+    # one scene of 3 seeds: every margin is described, none called
+    assert (f"D-3DGS (MLP) minus static: whole image +2.00 dB; per scene {TOO_FEW} on hook; foreground (alpha > 0) "
+            f"+2.00 dB; per scene {TOO_FEW} on hook.") in text  # fmt: skip
+    assert f"Liquid CfC minus static: whole image +0.05 dB; per scene {TOO_FEW} on hook" in text
+    assert "scene-seed runs" not in text  # one scene: no dataset verdict
+    assert "Ties floor (2 sigma): whole image 0.200 dB (the static model's spread over seeds, pooled over 1 " in text
     assert "tab:dnerf-margins" in tex[0] and "20.10 $\\pm$ 0.10" in tex[0] and "±" not in tex[0]
     # no static run planned: no section
     md = []

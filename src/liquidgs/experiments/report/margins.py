@@ -8,7 +8,10 @@ For every scene with static runs: each field's PSNR minus the static model's, pa
   scene has it; it does not depend on any model, but it includes the parts that do not move.
 Whole-image PSNR is results.json's final evaluation (mean of per-view PSNRs); region PSNRs pool
 the squared errors over the region (eval.regions), from 8-bit renders of the final checkpoint.
-Cells are mean +- sample std over the seeds both runs finished.
+Cells are mean +- sample std over the seeds both runs finished. A margin is called a gain or a loss
+by the rule of every verdict in the reports (significance.py): the clusters are the (scene, seed)
+pairs, a call needs MIN_CLUSTERS of them and their t-interval wholly beyond the ties rule's
+2 sigma, sigma the static model's run-to-run spread (the baseline's, as in the paper's rule).
 """
 
 from __future__ import annotations
@@ -26,7 +29,15 @@ from liquidgs.errors import LiquidGSError
 from liquidgs.eval.regions import region_psnr, region_share
 from liquidgs.experiments.report.aggregate import TIE_SIGMAS, Stat, stat
 from liquidgs.experiments.report.collect import Collection, RunRecord
-from liquidgs.experiments.report.references import MEAN
+from liquidgs.experiments.report.references import MEAN, paper_sigma
+from liquidgs.experiments.report.significance import (
+    CONFIDENCE,
+    MIN_CLUSTERS,
+    TOO_FEW,
+    PairedDifference,
+    cluster_difference,
+    pooled_sigma,
+)
 from liquidgs.experiments.report.stress import is_paper_run
 from liquidgs.experiments.report.tables import PlainTable
 from liquidgs.experiments.spec import SyntheticScene
@@ -37,7 +48,8 @@ from liquidgs.train.run import load_run, load_run_dataset
 BASELINE = "static"
 REGIONS = ("whole", "foreground", "moving")
 REGION_TEXT = {"whole": "whole image", "foreground": "foreground (alpha > 0)", "moving": "moving pixels"}
-VERDICTS = ("gain", "unclear", "loss", "one seed only")
+VERDICT_WORDS = {"helps": "gain", "hurts": "loss", "tie": "tie", TOO_FEW: TOO_FEW}
+"""significance's verdicts of a field minus static, in the words of this section."""
 CHECK_TOLERANCE_DB = 0.01
 """Whole-image PSNR of the re-rendered checkpoint against results.json: more apart is reported."""
 
@@ -146,6 +158,8 @@ def collect_scores(collection: Collection, device: str) -> tuple[list[RunScores]
 class SceneMargins:
     static: dict[str, Stat]
     """region -> the static model's PSNR over seeds."""
+    static_runs: dict[str, list[float]]
+    """region -> the static model's PSNR per seed (its run-to-run spread sets the ties floor)."""
     margins: dict[tuple[str, str], Stat]
     """(field, region) -> field minus static over the seeds both finished."""
     per_seed: dict[tuple[str, str], dict[int, float]]
@@ -159,11 +173,11 @@ def scene_margins(scores: list[RunScores]) -> dict[tuple[str, str], SceneMargins
     out = {}
     for key, fields in by_scene.items():
         static = fields.get(BASELINE, {})
-        static_stats = {}
+        static_stats, static_runs = {}, {}
         for region in REGIONS:
             values = [r.psnr[region] for r in static.values() if r.psnr.get(region) is not None]
             if values:
-                static_stats[region] = stat(values)
+                static_stats[region], static_runs[region] = stat(values), values
         margins, per_seed = {}, {}
         for field, runs in fields.items():
             if field == BASELINE:
@@ -177,7 +191,7 @@ def scene_margins(scores: list[RunScores]) -> dict[tuple[str, str], SceneMargins
                 if diffs:
                     margins[(field, region)] = stat(list(diffs.values()))
                     per_seed[(field, region)] = diffs
-        out[key] = SceneMargins(static_stats, margins, per_seed)
+        out[key] = SceneMargins(static_stats, static_runs, margins, per_seed)
     return out
 
 
@@ -207,20 +221,32 @@ def cell(value: Stat | None, signed: bool = False) -> str:
     return text + (f" ± {value.std:.2f}" if value.std is not None else "") + (f" (n={value.n})" if value.n < 2 else "")
 
 
-def verdict(margin: Stat) -> str:
-    """'gain', 'loss' or 'unclear': the mean against TIE_SIGMAS x its seed spread ('one seed only'
-    when there is no spread to hold it against)."""
-    if margin.std is None:
-        return "one seed only"
-    if abs(margin.mean) <= TIE_SIGMAS * margin.std:
-        return "unclear"
-    return "gain" if margin.mean > 0 else "loss"
+def margin_floor(scenes: list[SceneMargins], region: str) -> tuple[float, str]:
+    """(TIE_SIGMAS x sigma, where sigma comes from): sigma is the static model's PSNR spread over
+    seeds, pooled over the scenes; with one seed per scene, the paper's sigma."""
+    sigma, cells, runs = pooled_sigma([s.static_runs.get(region, []) for s in scenes])
+    if sigma is None:
+        sigma, source = paper_sigma()
+        return TIE_SIGMAS * sigma, f"one static run per scene, so {source}"
+    return TIE_SIGMAS * sigma, f"the static model's spread over seeds, pooled over {cells} scenes ({runs} runs)"
+
+
+def margin_difference(scenes: list[SceneMargins], field: str, region: str, floor: float) -> PairedDifference | None:
+    """The field's margin with its t-interval over the (scene, seed) clusters of `scenes`."""
+    margins = [m for s in scenes for _, m in sorted(s.per_seed.get((field, region), {}).items())]
+    return cluster_difference(margins, floor) if margins else None
+
+
+def verdict(difference: PairedDifference) -> str:
+    """'gain', 'loss', 'tie' or 'too few runs to call' (significance.call over the clusters)."""
+    return VERDICT_WORDS[difference.verdict]
 
 
 def margin_sentences(
-    dataset: str, by_scene: dict[str, SceneMargins], fields: list[str], regions: list[str]
+    dataset: str, by_scene: dict[str, SceneMargins], fields: list[str], regions: list[str], complete: bool
 ) -> list[str]:
-    """Per field and region: the range of the scene margins and which scenes gain, are unclear or lose."""
+    """Per field and region: the range of the scene margins, each scene's verdict over its seeds and,
+    when every scene of the dataset is there, the verdict over all (scene, seed) clusters."""
     lines = []
     for field in fields:
         parts = []
@@ -228,16 +254,22 @@ def margin_sentences(
             cells = {scene: m.margins[(field, region)] for scene, m in by_scene.items() if (field, region) in m.margins}
             if not cells:
                 continue
+            floor, _ = margin_floor(list(by_scene.values()), region)
             low = min(cells, key=lambda s: cells[s].mean)
             high = max(cells, key=lambda s: cells[s].mean)
             counts = defaultdict(list)
-            for scene, value in cells.items():
-                counts[verdict(value)].append(scene)
-            tally = ", ".join(f"{kind} on {', '.join(counts[kind])}" for kind in VERDICTS if counts[kind])
+            for scene in cells:
+                counts[verdict(margin_difference([by_scene[scene]], field, region, floor))].append(scene)
+            tally = ", ".join(f"{kind} on {', '.join(counts[kind])}" for kind in VERDICT_WORDS.values() if counts[kind])
             span = f"{cells[low].mean:+.2f} ({low}) to {cells[high].mean:+.2f} dB ({high})"
             if len(cells) == 1:
                 span = f"{cells[low].mean:+.2f} dB"
-            parts.append(f"{REGION_TEXT[region]} {span}: {tally}")
+            text = f"{REGION_TEXT[region]} {span}; per scene {tally}"
+            if complete and len(cells) == len(by_scene) > 1:
+                every = margin_difference(list(by_scene.values()), field, region, floor)
+                text += (f"; over all {every.clusters} scene-seed runs {every.mean:+.2f} dB, "
+                         f"t-interval {every.interval_text(2)}: {verdict(every)}")  # fmt: skip
+            parts.append(text)
         if parts:
             lines.append(f"- {dataset}, {field_label(field)} minus static: " + "; ".join(parts) + ".")
     return lines
@@ -260,7 +292,9 @@ def margin_section(collection: Collection, md: list[str], tex: list[str], device
         "same camera (exact; built-in synthetic scenes only, as real captures never see one camera at two "
         "times); **foreground** = pixels with alpha > 0 in the ground truth (model-independent, but it includes "
         "the parts that do not move). Cells: mean ± sample std over seeds. A margin is a gain (or a loss) when "
-        f"its mean is more than {TIE_SIGMAS:g} std from 0, else unclear.",
+        f"the {CONFIDENCE:.0%} Student t-interval of its mean over the (scene, seed) runs lies wholly above "
+        f"(below) the ties rule's {TIE_SIGMAS:g} sigma, sigma the static model's run-to-run PSNR spread; else a "
+        f"tie; under {MIN_CLUSTERS} runs it is {TOO_FEW} (the seeds of one scene alone rarely are enough).",
         "",
     ]
     margins = scene_margins(scores)
@@ -281,7 +315,8 @@ def margin_section(collection: Collection, md: list[str], tex: list[str], device
             values = [cell(m.static.get(r)) for r in regions]
             values += [cell(m.margins.get((f, r)), signed=True) for f in fields for r in regions]
             table.add(scene, scene, share + values)
-        if len(by_scene) > 1 and len(by_scene) == len(collection.scenes(dataset)):
+        complete = len(by_scene) == len(collection.scenes(dataset))
+        if len(by_scene) > 1 and complete:
             every = list(by_scene.values())
             values = [cell(dataset_static(every, r)) for r in regions]
             values += [cell(dataset_margin(every, f, r), signed=True) for f in fields for r in regions]
@@ -289,7 +324,10 @@ def margin_section(collection: Collection, md: list[str], tex: list[str], device
         caption = (f"{dataset}: margin of each field over the static model (dB), final evaluation; mean ± std over "
                    "seeds; Mean row: mean of the scene means, spread over the per-seed means.")  # fmt: skip
         md += [f"**{caption}**", "", table.to_markdown()]
-        md += [*margin_sentences(dataset, by_scene, fields, regions), ""]
+        floors = [(region, *margin_floor(list(by_scene.values()), region)) for region in regions]
+        md += [*margin_sentences(dataset, by_scene, fields, regions, complete), ""]
+        md += ["Ties floor (2 sigma): " + "; ".join(f"{REGION_TEXT[r]} {f:.3f} dB ({why})" for r, f, why in floors)
+               + ".", ""]  # fmt: skip
         latex = table.to_latex(caption.replace("_", "\\_"), f"tab:{dataset}-margins")
         tex.append(latex.replace("±", "$\\pm$"))
     if notes:
