@@ -260,7 +260,10 @@ def margin_sentences(
             counts = defaultdict(list)
             for scene in cells:
                 counts[verdict(margin_difference([by_scene[scene]], field, region, floor))].append(scene)
-            tally = ", ".join(f"{kind} on {', '.join(counts[kind])}" for kind in VERDICT_WORDS.values() if counts[kind])
+            kinds = [kind for kind in VERDICT_WORDS.values() if kind in counts]
+            tally = ", ".join(f"{kind} on {', '.join(counts[kind])}" for kind in kinds)
+            if len(kinds) == 1 and len(cells) > 1:
+                tally = f"{kinds[0]} on every scene"
             span = f"{cells[low].mean:+.2f} ({low}) to {cells[high].mean:+.2f} dB ({high})"
             if len(cells) == 1:
                 span = f"{cells[low].mean:+.2f} dB"
