@@ -3,7 +3,8 @@
 tests/data/config_v1 was made by liquidgs 52e35db, the last code with identity 1: hashes.json
 holds four configurations resolved from `liquidgs train` arguments with their hashes, and
 run-0de6fcb36b the config.yml / results.json / per_view.json of a finished 20-iteration run
-(its checkpoint left out).
+(its checkpoint left out). tests/data/config_v2_before_grid_lr.json holds identity-2 hashes made
+by liquidgs 9e28a81, before HexPlane's grid_lr_scale.
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ from liquidgs.experiments.runner import finished_elsewhere
 from liquidgs.train.config import (
     IDENTITY_VERSION,
     config_hash,
+    differing_settings,
     from_dict,
     identity,
     legacy_config_hash,
@@ -32,6 +34,7 @@ from liquidgs.train.config import (
 V1 = Path(__file__).parent / "data" / "config_v1"
 V1_CASES = json.loads((V1 / "hashes.json").read_text())["cases"]
 V1_RUN = V1 / "run-0de6fcb36b"
+BEFORE_GRID_LR = json.loads((Path(__file__).parent / "data" / "config_v2_before_grid_lr.json").read_text())
 
 
 @pytest.mark.parametrize("name", sorted(V1_CASES))
@@ -52,6 +55,25 @@ def test_identity_2_holds_every_setting_that_changes_a_run():
     assert not {"out", "resume", "device", "backend", "checkpoint_every"} & set(d)
     assert d["eval"]["also"] == [] and d["densify"]["max_per_pixel"] == 0 and "time_jitter" in d["perturb"]
     assert "name" not in d["field_options"]  # no placeholder of version 1
+
+
+@pytest.mark.parametrize("name", sorted(BEFORE_GRID_LR["cases"]))
+def test_grid_lr_scale_changed_the_identity_of_hexplane_runs_only(name):
+    """The built-in fields' hashes are those of before the setting; HexPlane's are new, so its runs
+    made then (the grid at the decoder's learning rate) are not taken for runs of this code."""
+    case = BEFORE_GRID_LR["cases"][name]
+    cfg, _ = resolve_config(["--data", BEFORE_GRID_LR["data"], *case["args"]])
+    assert (config_hash(cfg) == case["hash"]) == (cfg.field != "hexplane")
+    assert ("grid_lr_scale" in identity(cfg)["field_options"]) == (cfg.field == "hexplane")
+
+
+def test_grid_lr_scale_is_part_of_a_hexplane_runs_identity():
+    args = ["--data", "scene", "--preset", "tiny", "--field", "hexplane"]
+    default, _ = resolve_config(args)
+    scaled, _ = resolve_config([*args, "--field-options.grid-lr-scale", "4"])
+    assert identity(default)["field_options"]["grid_lr_scale"] is None  # the preset's, 10
+    assert differing_settings(default, scaled) == ["field_options.grid_lr_scale"]
+    assert config_hash(scaled) != config_hash(default)
 
 
 def test_a_version_1_config_yml_loads_and_keeps_its_hash():

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import abc
 import contextlib
+import math
+from collections import Counter
 from collections.abc import Iterator
 
 import torch
@@ -14,6 +16,8 @@ from liquidgs.errors import LiquidGSError
 from liquidgs.fields.encoding import time_column
 
 Deltas = tuple[torch.Tensor, torch.Tensor, torch.Tensor]
+ParamGroup = tuple[str, list[nn.Parameter], float]
+"""(name, parameters, learning-rate scale): one group of a field's parameters (param_groups)."""
 DELTA_WIDTHS = {"d_xyz": 3, "d_rotation": 4, "d_scaling": 3}
 """Columns of each delta, in the order a field returns them."""
 PROBE_POINTS = 8
@@ -102,6 +106,37 @@ class DeformationField(nn.Module, abc.ABC):
     def regulariser_loss(self) -> torch.Tensor | None:
         """Optional hook: a scalar loss term the trainer adds at every step after the warm-up."""
         return None
+
+    def param_groups(self) -> list[ParamGroup]:
+        """Optional hook: the parameters in groups (name, parameters, scale), each trained at the
+        run's field learning rate times its scale (hexplane: the grid faster than the decoder).
+        Every parameter in exactly one group; by default one group, "field", at scale 1."""
+        return [("field", list(self.parameters()), 1.0)]
+
+    def checked_param_groups(self) -> list[ParamGroup]:
+        """param_groups, refused in one line naming the field unless it holds every parameter
+        exactly once, each scale a finite number > 0 (the trainer builds its optimizer from it)."""
+        groups = [(name, list(params), scale) for name, params, scale in self.param_groups()]
+        names = {id(p): name for name, p in self.named_parameters()}
+        counts = Counter(id(p) for _, params, _ in groups for p in params)
+        missing = [name for key, name in names.items() if key not in counts]
+        repeated = [names[key] for key, n in counts.items() if n > 1 and key in names]
+        foreign = sum(key not in names for key in counts)
+        problems = [f"missing {', '.join(missing)}"] if missing else []
+        problems += [f"repeated {', '.join(repeated)}"] if repeated else []
+        problems += [f"{foreign} parameter(s) that are not the field's"] if foreign else []
+        if problems:
+            raise FieldContractError(
+                f"field '{self.name}': param_groups() must hold each of its parameters exactly once "
+                f"({'; '.join(problems)})"
+            )
+        for name, _, scale in groups:
+            if isinstance(scale, bool) or not (isinstance(scale, int | float) and math.isfinite(scale) and scale > 0):
+                raise FieldContractError(
+                    f"field '{self.name}': param group '{name}' has learning-rate scale {scale!r}, "
+                    "not a finite number > 0"
+                )
+        return groups
 
     @torch.no_grad()
     def begin_training(self, xyz: torch.Tensor) -> None:

@@ -3,8 +3,9 @@
 A setting left at None takes its value from the preset of the field's family ("mlp" for the
 D-3DGS MLP, "liquid" for the CfC / SDE fields: the family a field registers with, fields/registry.py);
 `resolved()` fills them in. A field registered without a family (hexplane, plugins) takes its sizes
-from its own preset, and a config that sets any of these options for it is refused. Every value is
-checked when the config is built, so a bad setting fails early with a ConfigError.
+from its own preset, and a config that sets any of these options for it is refused, but for the
+options that one field alone reads (FIELD_ONLY_OPTIONS). Every value is checked when the config is
+built, so a bad setting fails early with a ConfigError.
 """
 
 from __future__ import annotations
@@ -22,6 +23,10 @@ PresetName = Literal[PRESET_NAMES]  # type: ignore[valid-type]
 ACTIVATIONS = ("silu", "relu", "tanh", "gelu", "lecun_tanh")
 NOISE_SITES = ("gate", "ou", "solver")
 SCHEDULES = ("constant", "linear", "cosine")
+
+FIELD_ONLY_OPTIONS = {"grid_lr_scale": "hexplane"}
+"""FieldOptions that one field alone reads (by its name): refused for every other field, and left
+out of the other fields' config identities (so theirs stay those of the runs made before)."""
 
 PAPER_LAMBDA = 0.05
 """The paper's calibrated gate-noise level, used when an 'sde' config leaves lambda unset."""
@@ -41,7 +46,8 @@ def check_choice(kind: str, value: str, choices: tuple[str, ...]) -> None:
 
 @dataclass
 class FieldOptions:
-    """Sizes and noise variants of a field: everything but which field it is (name, preset, lambda).
+    """Sizes, noise variants and HexPlane's grid learning rate: everything but which field it is
+    (name, preset, lambda).
 
     Not validated on its own: most rules depend on the field's name, so they are checked once,
     when a FieldConfig is built from these options and a name (train's --field-options.*).
@@ -86,6 +92,11 @@ class FieldOptions:
     ltc_leak: float = 0.0
     """1 / tau_c of the hidden-state drift -(1/tau_c + f) h + f A (0: the pure OU form)."""
 
+    # HexPlane (fields/hexplane.py), whose sizes come from its preset.
+    grid_lr_scale: float | None = None
+    """The 'hexplane' grid's learning rate as a multiple of the field learning rate, which its
+    decoder trains at (None: the preset's, 10, 4DGaussians' ratio)."""
+
 
 @dataclass
 class FieldConfig(FieldOptions):
@@ -120,7 +131,11 @@ class FieldConfig(FieldOptions):
             raise ConfigError(f"field '{self.name}' has no preset '{self.preset}' (it has {', '.join(kind.presets)})")
         if kind.family is None:
             # A field outside the built-in families is sized by its preset alone.
-            changed = [f.name for f in dataclasses.fields(FieldOptions) if getattr(self, f.name) != f.default]
+            changed = [
+                f.name
+                for f in dataclasses.fields(FieldOptions)
+                if getattr(self, f.name) != f.default and f.name not in FIELD_ONLY_OPTIONS
+            ]
             if changed:
                 raise ConfigError(
                     f"field '{self.name}' takes its sizes from its preset; --field-options "
@@ -144,6 +159,12 @@ class FieldConfig(FieldOptions):
                 raise ConfigError(
                     f"noise, lambda_schedule and adaptive_lambda apply to the 'sde' field only, not to '{self.name}'"
                 )
+        for key, owner in FIELD_ONLY_OPTIONS.items():
+            if getattr(self, key) is not None and self.name != owner:
+                raise ConfigError(f"{key} applies to the '{owner}' field only, not to '{self.name}'")
+        scale = self.grid_lr_scale
+        if scale is not None and not (math.isfinite(scale) and scale > 0):
+            raise ConfigError(f"field: grid_lr_scale must be a finite number > 0, got {scale}")
         for key in ("xyz_freqs", "time_freqs", "timenet_width", "timenet_out"):
             if key in values and values[key] < 0:
                 raise ConfigError(f"field: {key} must be >= 0, got {values[key]}")

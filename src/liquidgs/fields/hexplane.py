@@ -18,7 +18,8 @@ As in 4DGaussians:
 - sampling uses corner-aligned nodes and clamps outside the box (grid_sample with
   align_corners=True, padding_mode='border'); only spatial resolutions grow with the level;
 - space planes start uniform in [0.1, 0.5] and time planes at 1, so at initialisation the
-  deltas do not depend on the time; Linear weights are Xavier-uniform, biases PyTorch's default.
+  deltas do not depend on the time; Linear weights are Xavier-uniform, biases PyTorch's default;
+- the grid trains at `grid_lr_scale` (10) times the decoder's learning rate (param_groups).
 """
 
 from __future__ import annotations
@@ -32,7 +33,7 @@ from torch import nn
 from torch.nn import functional as F
 
 from liquidgs.errors import ConfigError, LiquidGSError
-from liquidgs.fields.base import DeformationField, Deltas, linear_flops, stacked_linear
+from liquidgs.fields.base import DeformationField, Deltas, ParamGroup, linear_flops, stacked_linear
 from liquidgs.fields.config import FieldConfig
 from liquidgs.fields.registry import register as register_field
 
@@ -47,7 +48,7 @@ DEFAULT_BOUNDS = 1.6
 
 @dataclass(frozen=True)
 class HexPlaneConfig:
-    """Sizes of a HexPlane field and the weights of its grid regularisers."""
+    """Sizes of a HexPlane field, the weights of its grid regularisers and its grid's learning rate."""
 
     resolution: int
     """Spatial nodes per axis at level multiplier 1 (4DGaussians' kplanes_config resolution[:3])."""
@@ -64,6 +65,11 @@ class HexPlaneConfig:
     time_smoothness_weight: float
     time_l1_weight: float
     """4DGaussians' l1_time_planes: mean |1 - time plane|."""
+    grid_lr_scale: float
+    """The planes' learning rate as a multiple of the decoder's, which is the run's field learning
+    rate. 10 in every preset: 4DGaussians' arguments/__init__.py trains the grid at grid_lr_init
+    1.6e-3 -> grid_lr_final 1.6e-4 and the decoder at deformation_lr_init 1.6e-4 -> 1.6e-5
+    (arguments/dnerf/dnerf_default.py: 1.6e-3 -> 1.6e-5 against 1.6e-4 -> 1.6e-6), 10x at every step."""
 
     def __post_init__(self) -> None:
         for key in ("resolution", "time_resolution"):  # the smoothness takes second differences
@@ -78,6 +84,8 @@ class HexPlaneConfig:
             value = getattr(self, key)
             if not (math.isfinite(value) and value >= 0):
                 raise ConfigError(f"hexplane: {key} must be a finite number >= 0, got {value}")
+        if not (math.isfinite(self.grid_lr_scale) and self.grid_lr_scale > 0):
+            raise ConfigError(f"hexplane: grid_lr_scale must be a finite number > 0, got {self.grid_lr_scale}")
         object.__setattr__(self, "multires", tuple(self.multires))
 
     @classmethod
@@ -113,6 +121,7 @@ PRESETS: dict[str, dict] = {
         space_smoothness_weight=1e-4,
         time_smoothness_weight=1e-2,
         time_l1_weight=1e-4,
+        grid_lr_scale=10.0,
     ),
     "nerfds": dict(
         resolution=64,
@@ -123,6 +132,7 @@ PRESETS: dict[str, dict] = {
         space_smoothness_weight=2e-4,
         time_smoothness_weight=1e-3,
         time_l1_weight=1e-4,
+        grid_lr_scale=10.0,
     ),
     "tiny": dict(
         resolution=32,
@@ -133,6 +143,7 @@ PRESETS: dict[str, dict] = {
         space_smoothness_weight=1e-4,
         time_smoothness_weight=1e-2,
         time_l1_weight=1e-4,
+        grid_lr_scale=10.0,
     ),
 }
 
@@ -241,6 +252,12 @@ class HexPlaneField(DeformationField):
         l1 = sum((1 - level.time).abs().mean(dim=(1, 2, 3)).sum() for level in self.levels)
         return cfg.space_smoothness_weight * space + cfg.time_smoothness_weight * time + cfg.time_l1_weight * l1
 
+    def param_groups(self) -> list[ParamGroup]:
+        """The field contract's learning-rate hook: the planes at grid_lr_scale, the decoder at 1."""
+        grid = list(self.levels.parameters())
+        decoder = [p for name, p in self.named_parameters() if not name.startswith("levels.")]
+        return [("grid", grid, self.config.grid_lr_scale), ("decoder", decoder, 1.0)]
+
     def flops_per_gaussian(self) -> int:
         """The Linear layers only, as for every field; the grid lookups (per level 6 planes x
         features x 4 corners, then the products) are not counted, like an encoding."""
@@ -248,8 +265,10 @@ class HexPlaneField(DeformationField):
 
 
 def build(config: FieldConfig) -> HexPlaneField:
-    """The field of a run's config: sized by its preset (--field-options do not apply)."""
-    return HexPlaneField(HexPlaneConfig.preset(config.preset))
+    """The field of a run's config: sized by its preset; of the --field-options only grid_lr_scale
+    applies (None: the preset's)."""
+    overrides = {} if config.grid_lr_scale is None else {"grid_lr_scale": config.grid_lr_scale}
+    return HexPlaneField(HexPlaneConfig.preset(config.preset, **overrides))
 
 
 def register() -> None:

@@ -18,7 +18,8 @@ The contract a field satisfies (fields/base.py's DeformationField; subclass it):
   lambda_ and, for the built-in families, the FieldOptions sizes). A field registered without a
   family takes its sizes from its own preset: config.preset is one of the `presets` it registered
   (dnerf / nerfds / tiny, the names the training schedules share), and --field-options.* do not
-  apply to it (a config that sets any is refused). lambda_ is the 'sde' field's noise level and
+  apply to it (a config that sets any is refused; hexplane reads one, grid_lr_scale, named in
+  fields/config.py's FIELD_ONLY_OPTIONS). lambda_ is the 'sde' field's noise level and
   is 0 for every other field.
 - deltas(xyz, t) -> (d_xyz [N, 3], d_rotation [N, 4], d_scaling [N, 3]) for canonical means
   xyz [N, 3] and times t [1, 1] (one time for every Gaussian) or [N, 1]. forward() detaches xyz
@@ -30,10 +31,13 @@ The contract a field satisfies (fields/base.py's DeformationField; subclass it):
 - num_parameters() (all parameters by default) and flops_per_gaussian(): 2 x multiply-adds of the
   Linear layers per Gaussian (linear_flops), encodings and grid lookups not counted; `bench
   fields` reports both.
-- Optional hooks, both no-ops by default: setup(xyz) with the initial means before training
-  (hexplane fits its grid box to them), and regulariser_loss() -> a scalar tensor or None, which
-  the trainer adds to the loss at every step after the warm-up (hexplane's grid regularisers).
-  A field's state that setup sets must be a parameter or a persistent buffer, so checkpoints carry it.
+- Optional hooks, no-ops by default: setup(xyz) with the initial means before training
+  (hexplane fits its grid box to them), regulariser_loss() -> a scalar tensor or None, which
+  the trainer adds to the loss at every step after the warm-up (hexplane's grid regularisers),
+  and param_groups() -> [(name, parameters, scale)], every parameter in exactly one group, each
+  trained at the run's field learning rate times its scale (default: one group at 1; hexplane's
+  grid at 10). A field's state that setup sets must be a parameter or a persistent buffer, so
+  checkpoints carry it.
 
 Bad input: a plugin whose import or registration fails is reported in one line naming its package
 and the error, and every other field still works; two packages registering one name make that name

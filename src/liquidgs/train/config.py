@@ -20,7 +20,7 @@ from liquidgs.data.perturb import PerturbConfig
 from liquidgs.data.scene import DataConfig
 from liquidgs.errors import ConfigError
 from liquidgs.fields import FieldConfig, FieldOptions
-from liquidgs.fields.config import PRESET_NAMES, PresetName, check_choice
+from liquidgs.fields.config import FIELD_ONLY_OPTIONS, PRESET_NAMES, PresetName, check_choice
 from liquidgs.render import BACKENDS
 from liquidgs.settings import to_dict, with_settings
 from liquidgs.train.strategy import DensifyConfig
@@ -99,7 +99,8 @@ class TrainConfig:
     disturbance (opacity reset, SH degree step, end of warm-up, densification burst)."""
     field_options: FieldOptions = dataclasses.field(default_factory=FieldOptions)
     """Sizes and noise variants of the built-in fields (name, preset and lambda come from the flags
-    above); a field outside the built-in families is sized by its preset alone."""
+    above); a field outside the built-in families is sized by its preset alone (hexplane reads one
+    option, grid_lr_scale)."""
     perturb: PerturbConfig = dataclasses.field(default_factory=PerturbConfig)
     """Stress tests: corrupt or thin out the training split (test views stay clean)."""
     optim: OptimConfig = dataclasses.field(default_factory=OptimConfig)
@@ -287,6 +288,12 @@ def identity(cfg: TrainConfig) -> dict:
         for part in groups:
             node = node[part]
         del node[last]
+    # Added after version 2, each for one field: left out of the other fields' identities. The field
+    # that reads one holds it even at None (its preset's value), so that its runs made before the
+    # option existed (hexplane: the grid at the decoder's learning rate) are not taken for new ones.
+    for key, owner in FIELD_ONLY_OPTIONS.items():
+        if cfg.field != owner:
+            del d["field_options"][key]
     d["data"]["path"] = str(Path(d["data"]["path"]).resolve())
     d["identity"] = IDENTITY_VERSION
     return d

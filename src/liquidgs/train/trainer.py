@@ -57,6 +57,10 @@ class TrainingDiverged(LiquidGSError):
     pass
 
 
+class FieldGroupsChanged(LiquidGSError):
+    """A checkpoint's field optimizer groups the parameters otherwise than the field now does."""
+
+
 def make_lpips(cfg: TrainConfig, device: torch.device) -> tuple[LPIPS | None, str | None]:
     """The LPIPS metric, or None and the reason it is unavailable (reported, never skipped silently)."""
     try:
@@ -110,10 +114,7 @@ class Trainer:
         self.optimizers = {
             key: self._adam([self.params[key]], self._static_lr(key)) for key in PARAM_KEYS
         }
-        field_params = list(self.field.parameters())
-        self.field_optimizer = (
-            self._adam(field_params, cfg.optim.field_lr_init) if field_params else None
-        )
+        self.field_optimizer = self._field_adam()
         self.notes: list[str] = []
         """Things the user should know about this run (printed by the train command)."""
         self.strategy = D3DGSStrategy(cfg.densify, self._scene_extent())
@@ -151,9 +152,19 @@ class Trainer:
         )
         return fallback
 
-    def _adam(self, params: list[torch.nn.Parameter], lr: float) -> torch.optim.Adam:
+    def _adam(self, params: list[torch.nn.Parameter] | list[dict], lr: float) -> torch.optim.Adam:
         # fused: one kernel per step instead of about ten small ops (the same update rule).
         return torch.optim.Adam(params, lr=lr, eps=self.cfg.optim.adam_eps, fused=True)
+
+    def _field_adam(self) -> torch.optim.Adam | None:
+        """Adam over the field's parameter groups (its param_groups hook), each at the field learning
+        rate times its scale, kept in the group as "lr_scale"; None for a field without parameters."""
+        groups = self.field.checked_param_groups()
+        if not any(params for _, params, _ in groups):
+            return None
+        lr = self.cfg.optim.field_lr_init
+        adam_groups = [dict(params=params, lr=lr * scale, name=name, lr_scale=scale) for name, params, scale in groups]
+        return self._adam(adam_groups, lr)
 
     def _static_lr(self, key: str) -> float:
         o = self.cfg.optim
@@ -179,7 +190,7 @@ class Trainer:
         if self.field_optimizer is not None:
             field_lr = log_linear_lr(step, o.field_lr_init, o.field_lr_final, o.field_lr_steps)
             for group in self.field_optimizer.param_groups:
-                group["lr"] = field_lr
+                group["lr"] = field_lr * group["lr_scale"]
 
     @property
     def writer(self):
@@ -490,6 +501,8 @@ class Trainer:
         payload = read_checkpoint(path)
         try:
             self._restore(payload)
+        except FieldGroupsChanged as err:
+            raise LiquidGSError(f"{path}: {err}") from None
         except (KeyError, TypeError, ValueError, RuntimeError) as err:  # weights of another config
             raise LiquidGSError(f"{path}: checkpoint does not fit {CONFIG} ({type(err).__name__})") from None
         self.checkpoint_iteration = self._resumed_from = self.state.iteration
@@ -503,8 +516,23 @@ class Trainer:
             self.optimizers[key] = optimizer
         self.field.load_state_dict(payload["field"])
         if self.field_optimizer is not None and payload["field_optimizer"] is not None:
-            self.field_optimizer.load_state_dict(payload["field_optimizer"])
+            self._load_field_optimizer(payload["field_optimizer"])
         self.strategy_state = {k: v.to(self.device) for k, v in payload["strategy"].items()}
         self.state = TrainState(**payload["state"])
         torch.set_rng_state(payload["torch_rng"])
         self.camera_rng.bit_generator.state = payload["camera_rng"]
+
+    def _load_field_optimizer(self, saved: dict) -> None:
+        """The field's Adam state from a checkpoint. The groups' names and scales stay the field's:
+        a checkpoint made before fields had groups holds one group without them."""
+        groups = self.field_optimizer.param_groups
+        if len(saved["param_groups"]) != len(groups):
+            raise FieldGroupsChanged(
+                f"the checkpoint trains field '{self.field.name}' in {len(saved['param_groups'])} parameter "
+                f"group(s), this code in {len(groups)} ({', '.join(g['name'] for g in groups)}): it was made by "
+                "another version of the field; train the run again in a new folder"
+            )
+        own = [(g["name"], g["lr_scale"]) for g in groups]
+        self.field_optimizer.load_state_dict(saved)
+        for group, (name, scale) in zip(self.field_optimizer.param_groups, own):
+            group.update(name=name, lr_scale=scale)
