@@ -4,13 +4,13 @@ undistorted into pinhole cameras), and undistort an existing Nerfies-layout scen
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
-from typing import Literal
 
 import tyro
 
 from liquidgs.data import DataConfig, check_dataset, generate_synthetic
+from liquidgs.data.scene import Background, DataFormat, Split
 from liquidgs.data.colmap import Matcher, SolveOptions, import_pycolmap
 from liquidgs.errors import ConfigError
 from liquidgs.settings import parse_flags
@@ -33,21 +33,25 @@ class SynthArgs:
     """Seed of the random camera positions."""
 
 
+DATA_DEFAULTS = {f.name: f.default for f in fields(DataConfig)}
+
+
 @dataclass
 class CheckArgs:
     """Validate a dataset folder (every JSON field, every image fully decoded) and summarise it."""
 
     path: tyro.conf.Positional[Path]
     """Scene folder."""
-    format: Literal["auto", "dnerf", "nerfies"] = "auto"
+    # DataConfig's settings under check's own flag names (--format, not train's --data-format).
+    format: DataFormat = DATA_DEFAULTS["format"]
     """Dataset format; auto detects it from the files in the folder."""
-    split: Literal["auto", "nerfds", "vrig", "interp"] = "auto"
+    split: Split = DATA_DEFAULTS["split"]
     """Nerfies split preset (auto = nerfds)."""
-    downscale: int | None = None
+    downscale: int | None = DATA_DEFAULTS["downscale"]
     """Image downscale factor (default: 1 for D-NeRF, the split preset's for Nerfies)."""
-    background: Literal["black", "white"] = "black"
+    background: Background = DATA_DEFAULTS["background"]
     """Background colour RGBA images are composited on."""
-    val_as_test: bool = False
+    val_as_test: bool = DATA_DEFAULTS["val_as_test"]
     """D-NeRF: use the val split as test."""
 
 
@@ -126,15 +130,8 @@ def synth(args: SynthArgs) -> int:
 
 
 def check(args: CheckArgs) -> int:
-    config = DataConfig(
-        path=args.path,
-        format=args.format,
-        split=args.split,
-        downscale=args.downscale,
-        background=args.background,
-        val_as_test=args.val_as_test,
-        cache_images=0,
-    )
+    options = {f.name: getattr(args, f.name) for f in fields(CheckArgs) if f.name != "path"}
+    config = DataConfig(path=args.path, cache_images=0, **options)
     print("\n".join(check_dataset(config).lines()))
     return 0
 

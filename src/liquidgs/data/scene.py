@@ -20,6 +20,13 @@ BACKGROUNDS = {"black": (0.0, 0.0, 0.0), "white": (1.0, 1.0, 1.0)}
 # They reproduce the reference's choices, which it makes from the parent folder's name.
 NERFIES_PRESETS = {"nerfds": 1, "vrig": 4, "interp": 2}
 
+# The choices of DataConfig's settings, owned here (commands that read a scene take these types).
+DATA_FORMATS = ("auto", "dnerf", "nerfies")
+SPLITS = ("auto", *NERFIES_PRESETS)
+DataFormat = Literal[DATA_FORMATS]
+Split = Literal[SPLITS]
+Background = Literal[tuple(BACKGROUNDS)]
+
 
 @dataclass
 class DataConfig:
@@ -28,14 +35,14 @@ class DataConfig:
     # Flag names: TrainConfig shows these settings without a prefix (--data, --data-format, --downscale).
     path: Annotated[Path, tyro.conf.arg(name="data")]
     """Scene folder (D-NeRF: transforms_*.json; Nerfies/NeRF-DS/HyperNeRF: dataset.json)."""
-    format: Annotated[Literal["auto", "dnerf", "nerfies"], tyro.conf.arg(name="data_format")] = "auto"
+    format: Annotated[DataFormat, tyro.conf.arg(name="data_format")] = "auto"
     """`auto` detects the format from the files in the folder, never from its name."""
     downscale: int | None = None
     """Image downscale factor. None: 1 for D-NeRF (area-averaged for other values), the split
     preset's rgb/<k>x folder for Nerfies (nerfds 1, vrig 4, interp 2)."""
-    background: Literal["black", "white"] = "black"
+    background: Background = "black"
     """Colour RGBA images are composited on: rgb*a + bg*(1-a)."""
-    split: Literal["auto", "nerfds", "vrig", "interp"] = "auto"
+    split: Split = "auto"
     """Nerfies presets: nerfds = train_ids/val_ids, vrig = train_ids/val_ids, interp =
     ids[::4]/ids[2::4]. `auto` is nerfds for Nerfies and the transforms files for D-NeRF."""
     val_as_test: bool = False
@@ -48,12 +55,12 @@ class DataConfig:
 
     def __post_init__(self) -> None:
         self.path = Path(self.path)
-        if self.format not in ("auto", "dnerf", "nerfies"):
-            raise ConfigError(f"data.format: unknown format '{self.format}' (auto, dnerf, nerfies)")
+        if self.format not in DATA_FORMATS:
+            raise ConfigError(f"data.format: unknown format '{self.format}' ({', '.join(DATA_FORMATS)})")
         if self.background not in BACKGROUNDS:
-            raise ConfigError(f"data.background: unknown background '{self.background}' (black, white)")
-        if self.split != "auto" and self.split not in NERFIES_PRESETS:
-            raise ConfigError(f"data.split: unknown split '{self.split}' (auto, {', '.join(NERFIES_PRESETS)})")
+            raise ConfigError(f"data.background: unknown background '{self.background}' ({', '.join(BACKGROUNDS)})")
+        if self.split not in SPLITS:
+            raise ConfigError(f"data.split: unknown split '{self.split}' ({', '.join(SPLITS)})")
         if self.downscale is not None and (isinstance(self.downscale, bool) or self.downscale < 1):
             raise ConfigError(f"data.downscale: must be a positive integer, got {self.downscale}")
         if self.cache_images < 0:
