@@ -10,8 +10,8 @@ from pathlib import Path
 import tyro
 
 from liquidgs.data import DataConfig, check_dataset, generate_synthetic
-from liquidgs.data.scene import Background, DataFormat, Split
 from liquidgs.data.colmap import Matcher, SolveOptions, import_pycolmap
+from liquidgs.data.scene import Background, DataFormat, Split
 from liquidgs.errors import ConfigError
 from liquidgs.settings import parse_flags
 
