@@ -208,3 +208,24 @@ def test_the_kernel_is_built_once_into_the_cache(tmp_path):
     built = list(cache.glob("cpu_render-*.so"))
     assert len(built) == 1
     assert not [p for p in cache.iterdir() if p not in built], "no temporary left behind"
+
+
+def test_the_kernel_takes_its_constants_from_the_torch_backend(monkeypatch, tmp_path):
+    """The kernel holds no copy of the blend's constants: built with other values for them (as a
+    change of composite.py / projection.py would give it), it follows the torch backend there."""
+    from liquidgs.render import composite, projection
+
+    scene = random_scene(300, width=40, height=32, seed=5, dtype=torch.float64)
+    default = images(scene, "cpu")
+    monkeypatch.setattr(composite, "MAX_ALPHA", 0.6)
+    monkeypatch.setattr(projection, "FRUSTUM_MARGIN", 0.05)
+    monkeypatch.setattr(projection, "MAX_EXTENT_SIGMAS", 2.5)
+    changed = dict(cpu_backend.DEFINES) | {
+        "LIQUIDGS_MAX_ALPHA": 0.6, "LIQUIDGS_FRUSTUM_MARGIN": 0.05, "LIQUIDGS_MAX_EXTENT_SIGMAS": 2.5
+    }
+    monkeypatch.setattr(cpu_backend, "DEFINES", tuple(changed.items()))
+    monkeypatch.setenv("LIQUIDGS_CACHE_DIR", str(tmp_path))  # this variant is built here, not in the user's cache
+    ours, reference = images(scene, "cpu"), images(scene, "torch")
+    assert not torch.equal(ours[0], default[0]), "the new constants should change the image"
+    for got, want in zip(ours, reference):
+        torch.testing.assert_close(got, want, rtol=1e-12, atol=1e-12)

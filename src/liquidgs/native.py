@@ -49,11 +49,21 @@ def _cpu_signature() -> str:
         return platform.processor() or platform.machine()
 
 
-def _compile(compiler: str, sources: tuple[Path, ...], target: Path) -> None:
+Defines = tuple[tuple[str, float], ...]
+"""Compile-time constants (macro name, value) a library is built with: the Python module that
+owns a constant passes it, so a kernel never holds its own copy."""
+
+
+def define_flags(defines: Defines) -> list[str]:
+    # repr: the shortest literal that reads back as the same double.
+    return [f"-D{name}={float(value)!r}" for name, value in defines]
+
+
+def _compile(compiler: str, sources: tuple[Path, ...], target: Path, defines: Defines) -> None:
     target.parent.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(dir=target.parent) as scratch:
         built = Path(scratch) / target.name
-        command = [compiler, *FLAGS, *(str(source) for source in sources), "-o", str(built)]
+        command = [compiler, *FLAGS, *define_flags(defines), *(str(source) for source in sources), "-o", str(built)]
         result = subprocess.run(command, capture_output=True, text=True, check=False)
         if result.returncode != 0:
             first = (result.stderr.strip().splitlines() or ["no output"])[0]
@@ -64,16 +74,18 @@ def _compile(compiler: str, sources: tuple[Path, ...], target: Path) -> None:
 _outcomes: dict[tuple, ctypes.CDLL | KernelUnavailable] = {}
 
 
-def load(name: str, sources: tuple[Path, ...], declare: Callable[[ctypes.CDLL], None]) -> ctypes.CDLL:
-    """The library `name` built from `sources`, after `declare` set its functions' argtypes.
+def load(
+    name: str, sources: tuple[Path, ...], declare: Callable[[ctypes.CDLL], None], defines: Defines = ()
+) -> ctypes.CDLL:
+    """The library `name` built from `sources` with `defines`, after `declare` set its functions' argtypes.
 
     Raises KernelUnavailable with the reason when it cannot be built or loaded; the outcome,
     either way, is kept for the process, so a missing compiler is looked for once.
     """
-    key = (name, sources)
+    key = (name, sources, defines)
     if key not in _outcomes:
         try:
-            _outcomes[key] = _build_and_load(name, sources, declare)
+            _outcomes[key] = _build_and_load(name, sources, declare, defines)
         except KernelUnavailable as err:
             _outcomes[key] = err
     outcome = _outcomes[key]
@@ -82,16 +94,20 @@ def load(name: str, sources: tuple[Path, ...], declare: Callable[[ctypes.CDLL], 
     return outcome
 
 
-def unavailable_reason(name: str, sources: tuple[Path, ...], declare: Callable[[ctypes.CDLL], None]) -> str | None:
+def unavailable_reason(
+    name: str, sources: tuple[Path, ...], declare: Callable[[ctypes.CDLL], None], defines: Defines = ()
+) -> str | None:
     """None when `load` gives the library, else why it cannot."""
     try:
-        load(name, sources, declare)
+        load(name, sources, declare, defines)
     except KernelUnavailable as err:
         return str(err)
     return None
 
 
-def _build_and_load(name: str, sources: tuple[Path, ...], declare: Callable[[ctypes.CDLL], None]) -> ctypes.CDLL:
+def _build_and_load(
+    name: str, sources: tuple[Path, ...], declare: Callable[[ctypes.CDLL], None], defines: Defines
+) -> ctypes.CDLL:
     if os.environ.get(DISABLE_VARIABLE, "1") == "0":
         raise KernelUnavailable(f"{DISABLE_VARIABLE}=0")
     missing = [source.name for source in sources if not source.is_file()]
@@ -106,12 +122,12 @@ def _build_and_load(name: str, sources: tuple[Path, ...], declare: Callable[[cty
         raise KernelUnavailable(f"cannot run {compiler}: {err.strerror}") from None
     texts = [source.read_text() for source in sources]
     key = hashlib.sha256(
-        b"\0".join(s.encode() for s in (*texts, " ".join(FLAGS), version, _cpu_signature()))
+        b"\0".join(s.encode() for s in (*texts, " ".join(FLAGS + tuple(define_flags(defines))), version, _cpu_signature()))
     ).hexdigest()[:16]
     target = _cache_dir() / f"{name}-{key}.so"
     if not target.is_file():
         try:
-            _compile(compiler, sources, target)
+            _compile(compiler, sources, target, defines)
         except OSError as err:
             raise KernelUnavailable(f"cannot build in {target.parent}: {err.strerror or err}") from None
     try:

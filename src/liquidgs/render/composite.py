@@ -18,8 +18,8 @@ from torch import Tensor
 from liquidgs.render.projection import ALPHA_THRESHOLD
 from liquidgs.render.tiles import TileBins, TileChunk, plan_chunks
 
-# gsplat's per-fragment alpha clamp and the transmittance that ends a pixel (cpu_composite.cpp
-# has its own copies for its compile-time constants).
+# gsplat's per-fragment alpha clamp and the transmittance that ends a pixel (cpu_backend.py builds
+# the compiled kernel with these values).
 MAX_ALPHA = 0.999
 MIN_TRANSMITTANCE = 1e-4
 DEFAULT_CHUNK_ELEMENTS = 1 << 20

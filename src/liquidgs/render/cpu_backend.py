@@ -15,13 +15,28 @@ from torch import Tensor
 from liquidgs import native
 from liquidgs.cameras import view_centre
 from liquidgs.native import INT, INT64, POINTER, pointer
+from liquidgs.render.composite import MAX_ALPHA, MIN_TRANSMITTANCE
 from liquidgs.render.contract import RasterOptions, RenderOutput
-from liquidgs.render.projection import Projection, project_gaussians
+from liquidgs.render.projection import (
+    ALPHA_THRESHOLD,
+    FRUSTUM_MARGIN,
+    MAX_EXTENT_SIGMAS,
+    Projection,
+    project_gaussians,
+)
 from liquidgs.render.tiles import TileBins, tile_boxes
 from liquidgs.render.torch_backend import TiledStages, render_tiled, view_colors
 from liquidgs.sh import num_sh_bases
 
 SOURCES = (Path(__file__).with_name("cpu_composite.cpp"), Path(__file__).with_name("cpu_project.cpp"))
+# The kernels' constants, from the modules of the torch backend that own them.
+DEFINES = (
+    ("LIQUIDGS_MAX_ALPHA", MAX_ALPHA),
+    ("LIQUIDGS_ALPHA_THRESHOLD", ALPHA_THRESHOLD),
+    ("LIQUIDGS_MIN_TRANSMITTANCE", MIN_TRANSMITTANCE),
+    ("LIQUIDGS_MAX_EXTENT_SIGMAS", MAX_EXTENT_SIGMAS),
+    ("LIQUIDGS_FRUSTUM_MARGIN", FRUSTUM_MARGIN),
+)
 # Gradient row per Gaussian: means2d (2), conics (3), opacity (1), RGB + depth (4), |means2d| (2).
 ROW = 12
 FEATURES = 4
@@ -46,7 +61,7 @@ def _declare(library: ctypes.CDLL) -> None:
 
 
 def _library() -> ctypes.CDLL:
-    return native.load("cpu_render", SOURCES, _declare)
+    return native.load("cpu_render", SOURCES, _declare, DEFINES)
 
 
 def unavailable_reason(tensor: Tensor | None = None) -> str | None:
@@ -55,7 +70,7 @@ def unavailable_reason(tensor: Tensor | None = None) -> str | None:
         return f"tensors are on {tensor.device.type}"
     if tensor is not None and tensor.dtype not in (torch.float32, torch.float64):
         return f"dtype {tensor.dtype} (float32 or float64 only)"
-    return native.unavailable_reason("cpu_render", SOURCES, _declare)
+    return native.unavailable_reason("cpu_render", SOURCES, _declare, DEFINES)
 
 
 def report_fallback(reason: str) -> None:

@@ -12,6 +12,11 @@
 // Built on first use by liquidgs/render/cpu_backend.py and called through ctypes: plain C
 // types only, no torch headers, so it compiles in about a second with g++ or clang++.
 
+#if !defined(LIQUIDGS_MAX_ALPHA) || !defined(LIQUIDGS_ALPHA_THRESHOLD) || !defined(LIQUIDGS_MIN_TRANSMITTANCE) || \
+    !defined(LIQUIDGS_MAX_EXTENT_SIGMAS) || !defined(LIQUIDGS_FRUSTUM_MARGIN)
+#error "built by liquidgs/render/cpu_backend.py, which passes the constants of the torch backend (DEFINES)"
+#endif
+
 #include <cmath>
 #include <cstdint>
 #include <vector>
@@ -45,9 +50,9 @@ struct F64 {
 
 template <typename P> struct Limits {
     using S = typename P::S;
-    static constexpr S max_alpha = S(0.999);
-    static constexpr S alpha_threshold = S(1) / S(255);
-    static constexpr S min_transmittance = S(1e-4);
+    static constexpr S max_alpha = S(LIQUIDGS_MAX_ALPHA);
+    static constexpr S alpha_threshold = S(LIQUIDGS_ALPHA_THRESHOLD);
+    static constexpr S min_transmittance = S(LIQUIDGS_MIN_TRANSMITTANCE);
 };
 
 template <typename P> inline typename P::V splat(typename P::S value) {

@@ -112,10 +112,10 @@ inline void project_one(const S* mean, const S* quat, const S* scale, const Came
 
     const S w = S(set.width), h = S(set.height);
     const S tan_x = S(0.5) * w / cam.fx, tan_y = S(0.5) * h / cam.fy;
-    const S lim_x_pos = (w - cam.cx) / cam.fx + S(0.3) * tan_x;
-    const S lim_x_neg = cam.cx / cam.fx + S(0.3) * tan_x;
-    const S lim_y_pos = (h - cam.cy) / cam.fy + S(0.3) * tan_y;
-    const S lim_y_neg = cam.cy / cam.fy + S(0.3) * tan_y;
+    const S lim_x_pos = (w - cam.cx) / cam.fx + S(LIQUIDGS_FRUSTUM_MARGIN) * tan_x;
+    const S lim_x_neg = cam.cx / cam.fx + S(LIQUIDGS_FRUSTUM_MARGIN) * tan_x;
+    const S lim_y_pos = (h - cam.cy) / cam.fy + S(LIQUIDGS_FRUSTUM_MARGIN) * tan_y;
+    const S lim_y_neg = cam.cy / cam.fy + S(LIQUIDGS_FRUSTUM_MARGIN) * tan_y;
     const S ratio_x = p.x / p.z_safe, ratio_y = p.y / p.z_safe;
     p.clamped_x = ratio_x < -lim_x_neg || ratio_x > lim_x_pos;
     p.clamped_y = ratio_y < -lim_y_neg || ratio_y > lim_y_pos;
@@ -156,8 +156,8 @@ void project_forward(const S* means, const S* quats, const S* scales, const S* o
                      const S* camera_block, const Settings<S>& set, S* means2d, S* conics, S* depths,
                      int32_t* radii_xy, uint8_t* visible, int threads) {
     const Camera<S> cam = read_camera(camera_block);
-    const S alpha_threshold = S(1) / S(255);
-    const S max_extent = S(3.33);
+    const S alpha_threshold = S(LIQUIDGS_ALPHA_THRESHOLD);
+    const S max_extent = S(LIQUIDGS_MAX_EXTENT_SIGMAS);
 #pragma omp parallel for num_threads(threads) schedule(static)
     for (int64_t i = 0; i < n; ++i) {
         Projected<S> p;

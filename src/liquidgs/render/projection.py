@@ -11,6 +11,9 @@ from torch import Tensor
 ALPHA_THRESHOLD = 1.0 / 255.0
 # gsplat's bounding-box extent in standard deviations before the opacity-aware tightening.
 MAX_EXTENT_SIGMAS = 3.33
+# gsplat's frustum clamp of the covariance's Jacobian: view-space tangents beyond the image's by
+# more than this fraction of the half field of view are clamped.
+FRUSTUM_MARGIN = 0.3
 
 
 @dataclass
@@ -81,10 +84,10 @@ def project_gaussians(
     # gsplat clamps the Jacobian's x/z, y/z to the field of view widened by 30% on each side.
     tan_half_fov_x = 0.5 * width / fx
     tan_half_fov_y = 0.5 * height / fy
-    lim_x_pos = (width - cx) / fx + 0.3 * tan_half_fov_x
-    lim_x_neg = cx / fx + 0.3 * tan_half_fov_x
-    lim_y_pos = (height - cy) / fy + 0.3 * tan_half_fov_y
-    lim_y_neg = cy / fy + 0.3 * tan_half_fov_y
+    lim_x_pos = (width - cx) / fx + FRUSTUM_MARGIN * tan_half_fov_x
+    lim_x_neg = cx / fx + FRUSTUM_MARGIN * tan_half_fov_x
+    lim_y_pos = (height - cy) / fy + FRUSTUM_MARGIN * tan_half_fov_y
+    lim_y_neg = cy / fy + FRUSTUM_MARGIN * tan_half_fov_y
     tx = z_safe * torch.minimum(torch.maximum(x / z_safe, -lim_x_neg), lim_x_pos)
     ty = z_safe * torch.minimum(torch.maximum(y / z_safe, -lim_y_neg), lim_y_pos)
     zeros = torch.zeros_like(z_safe)
