@@ -122,7 +122,7 @@ def _build_and_load(
         raise KernelUnavailable(f"cannot run {compiler}: {err.strerror}") from None
     texts = [source.read_text() for source in sources]
     key = hashlib.sha256(
-        b"\0".join(s.encode() for s in (*texts, " ".join(FLAGS + tuple(define_flags(defines))), version, _cpu_signature()))
+        b"\0".join(s.encode() for s in (*texts, " ".join([*FLAGS, *define_flags(defines)]), version, _cpu_signature()))
     ).hexdigest()[:16]
     target = _cache_dir() / f"{name}-{key}.so"
     if not target.is_file():
