@@ -117,10 +117,14 @@ def tie_floor(collection: Collection) -> tuple[float, str]:
     return TIE_SIGMAS * sigma, f"sigma = {sigma:.3f} dB: {measured}"
 
 
-def compare(collection: Collection, perturb: str, floor: float = 0.0) -> list[Comparison]:
-    """Each sde variant minus the CfC at each strength, paired by scene, seed and test view; a
-    difference is called only where its interval lies beyond +-`floor` dB."""
-    comparisons = []
+Cluster = tuple[str, str, int]
+"""(dataset, scene, seed): the runs of one cluster."""
+
+
+def paired_clusters(collection: Collection, perturb: str) -> dict[tuple[str, float], dict[Cluster, np.ndarray]]:
+    """(sde variant, strength) -> cluster -> PSNR of the variant minus the CfC per test view, the
+    runs paired by scene, seed and strength under one perturbation (strength 0: the clean runs)."""
+    out: dict[tuple[str, float], dict[Cluster, np.ndarray]] = defaultdict(dict)
     for strength in strengths(collection, perturb):
         runs = _runs_at(collection, perturb, strength)
         baseline = {
@@ -128,15 +132,21 @@ def compare(collection: Collection, perturb: str, floor: float = 0.0) -> list[Co
             for r in runs
             if r.entry.label == BASELINE and r.per_view is not None
         }
-        clusters: dict[str, list[np.ndarray]] = defaultdict(list)
         for run in runs:
             key = (run.entry.dataset, run.entry.scene, run.entry.seed)
             if run.entry.field == "sde" and run.per_view is not None and key in baseline:
-                clusters[run.entry.label].append(per_view_differences(run.per_view, baseline[key]))
-        for variant, diffs in clusters.items():
-            if any(len(d) for d in diffs):
-                comparisons.append(Comparison(variant, strength, paired_difference(diffs, floor)))
-    return comparisons
+                out[(run.entry.label, strength)][key] = per_view_differences(run.per_view, baseline[key])
+    return out
+
+
+def compare(collection: Collection, perturb: str, floor: float = 0.0) -> list[Comparison]:
+    """Each sde variant minus the CfC at each strength, paired by scene, seed and test view; a
+    difference is called only where its interval lies beyond +-`floor` dB."""
+    return [
+        Comparison(variant, strength, paired_difference(list(clusters.values()), floor))
+        for (variant, strength), clusters in paired_clusters(collection, perturb).items()
+        if any(len(d) for d in clusters.values())
+    ]
 
 
 def verdict_sentence(perturb: str, comparisons: list[Comparison]) -> str:
