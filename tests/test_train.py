@@ -355,3 +355,24 @@ def test_the_d3dgs_codes_evaluation_list_is_one_flag_away(small_scene, tmp_path)
     assert config_hash(load_yaml(tmp_path / "config.yml")) == config_hash(cfg)
     with pytest.raises(ConfigError, match="eval.also must hold iterations >= 1"):
         resolve_config([*base, "--eval.also", "0"])
+
+
+def test_a_run_trains_the_same_with_or_without_lpips(small_scene, tmp_path):
+    """LPIPS is a score, not part of training: whether its weights are found must not move the run
+    (its layers are built before their weights are loaded; drawn from the run's generator, their
+    random initial weights used to shift every random number after them)."""
+    from liquidgs.eval.lpips import _FEATURE_BUILDERS
+
+    weights = tmp_path / "weights"
+    weights.mkdir()
+    state = {f"features.{k}": v for k, v in _FEATURE_BUILDERS["alex"]().state_dict().items()}
+    torch.save(state, weights / "alexnet_features.pth")
+    flags = ["--data", str(small_scene), "--field", "sde", *SMOKE_FLAGS, "--eval.lpips-backbone", "alex"]
+    scored = run_train([*flags, "--eval.lpips-weights", str(weights), "--out", str(tmp_path / "scored")])
+    unscored = run_train([*flags, "--eval.lpips-weights", str(tmp_path / "none"), "--out", str(tmp_path / "unscored")])
+    assert scored.final["lpips"] is not None and unscored.final["lpips"] is None
+    a = torch.load(tmp_path / "scored" / "checkpoint.pt", weights_only=False)
+    b = torch.load(tmp_path / "unscored" / "checkpoint.pt", weights_only=False)
+    for key, value in a["params"].items():
+        assert torch.equal(value, b["params"][key]), key
+    assert scored.final["psnr"] == unscored.final["psnr"]

@@ -245,7 +245,11 @@ class LPIPS(nn.Module):
         self.weights_path, self.weights_source = resolve_backbone_weights(backbone, weights)
         self.lin_path = lin_weights_path(backbone)
 
-        self.features = _FEATURE_BUILDERS[backbone]()
+        # The layers are built with random weights that the files then replace: drawn from a forked
+        # generator, so that whether LPIPS is available never moves a training run's random numbers.
+        with torch.random.fork_rng(devices=[]):
+            self.features = _FEATURE_BUILDERS[backbone]()
+            self.lins = nn.ModuleList(nn.Conv2d(c, 1, kernel_size=1, bias=False) for c in spec.channels)
         what = "backbone weights"
         state = _load_state_dict(self.weights_path, backbone, what)
         # Full torchvision checkpoints also hold the classifier; only ``features.*`` is used.
@@ -253,7 +257,6 @@ class LPIPS(nn.Module):
         features_state = {k.removeprefix(prefix): v for k, v in state.items() if k.startswith(prefix)}
         self._load_into(self.features, features_state, self.weights_path, what)
 
-        self.lins = nn.ModuleList(nn.Conv2d(c, 1, kernel_size=1, bias=False) for c in spec.channels)
         lin_state = _load_state_dict(self.lin_path, backbone, "lin-layer weights")
         # The lpips package names them lin<k>.model.1.weight (index 0 is a dropout).
         lin_state = {f"{k}.weight": lin_state.get(f"lin{k}.model.1.weight") for k in range(len(self.lins))}
