@@ -162,12 +162,13 @@ def test_a_margin_is_called_over_scene_seed_clusters_beyond_two_sigma():
                                                                pytest.approx(high))  # fmt: skip
     assert low > floor and verdict(both) == "gain"
     by_scene = dict(zip("ab", scenes))
-    (sentence,) = margin_sentences("d", by_scene, ["mlp"], ["whole"], complete=True)
+    (sentence,) = margin_sentences("d", by_scene, ["mlp"], {"whole": floor}, complete=True)
     assert sentence == (
         f"- d, D-3DGS (MLP) minus static: whole image +0.97 (b) to +1.03 dB (a); per scene {TOO_FEW} "
         f"on every scene; over all 6 scene-seed runs +1.00 dB, t-interval {both.interval_text(2)}: gain."
     )
-    (partial,) = margin_sentences("d", by_scene, ["mlp"], ["whole"], complete=False)  # a scene of the dataset missing
+    # a scene of the dataset missing: no dataset verdict
+    (partial,) = margin_sentences("d", by_scene, ["mlp"], {"whole": floor}, complete=False)
     assert "scene-seed runs" not in partial
     # a margin whose interval reaches inside 2 sigma is a tie, however far its mean is from 0
     close = many_scenes({"a": [0.3, 0.1, 0.5], "b": [0.2, 0.4, 0.0]})

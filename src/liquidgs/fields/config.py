@@ -42,8 +42,6 @@ def check_choice(kind: str, value: str, choices: tuple[str, ...]) -> None:
         raise ConfigError(f"unknown {kind} '{value}' (choose from {', '.join(choices)})")
 
 
-
-
 @dataclass
 class FieldOptions:
     """Sizes, noise variants and HexPlane's grid learning rate: everything but which field it is

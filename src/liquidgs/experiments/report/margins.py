@@ -243,18 +243,18 @@ def verdict(difference: PairedDifference) -> str:
 
 
 def margin_sentences(
-    dataset: str, by_scene: dict[str, SceneMargins], fields: list[str], regions: list[str], complete: bool
+    dataset: str, by_scene: dict[str, SceneMargins], fields: list[str], floors: dict[str, float], complete: bool
 ) -> list[str]:
-    """Per field and region: the range of the scene margins, each scene's verdict over its seeds and,
-    when every scene of the dataset is there, the verdict over all (scene, seed) clusters."""
+    """Per field and region (the regions of `floors`, each with its ties floor, margin_floor): the
+    range of the scene margins, each scene's verdict over its seeds and, when every scene of the
+    dataset is there, the verdict over all (scene, seed) clusters."""
     lines = []
     for field in fields:
         parts = []
-        for region in regions:
+        for region, floor in floors.items():
             cells = {scene: m.margins[(field, region)] for scene, m in by_scene.items() if (field, region) in m.margins}
             if not cells:
                 continue
-            floor, _ = margin_floor(list(by_scene.values()), region)
             low = min(cells, key=lambda s: cells[s].mean)
             high = max(cells, key=lambda s: cells[s].mean)
             counts = defaultdict(list)
@@ -327,10 +327,10 @@ def margin_section(collection: Collection, md: list[str], tex: list[str], device
         caption = (f"{dataset}: margin of each field over the static model (dB), final evaluation; mean ± std over "
                    "seeds; Mean row: mean of the scene means, spread over the per-seed means.")  # fmt: skip
         md += [f"**{caption}**", "", table.to_markdown()]
-        floors = [(region, *margin_floor(list(by_scene.values()), region)) for region in regions]
-        md += [*margin_sentences(dataset, by_scene, fields, regions, complete), ""]
-        md += ["Ties floor (2 sigma): " + "; ".join(f"{REGION_TEXT[r]} {f:.3f} dB ({why})" for r, f, why in floors)
-               + ".", ""]  # fmt: skip
+        floors = {region: margin_floor(list(by_scene.values()), region) for region in regions}
+        md += [*margin_sentences(dataset, by_scene, fields, {r: f for r, (f, _) in floors.items()}, complete), ""]
+        md += ["Ties floor (2 sigma): " + "; ".join(f"{REGION_TEXT[r]} {f:.3f} dB ({why})"
+                                                  for r, (f, why) in floors.items()) + ".", ""]  # fmt: skip
         latex = table.to_latex(caption.replace("_", "\\_"), f"tab:{dataset}-margins")
         tex.append(latex.replace("±", "$\\pm$"))
     if notes:
