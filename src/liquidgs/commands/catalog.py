@@ -235,8 +235,8 @@ def cli_reference() -> str:
         "",
         "Generated when the site is built from the settings the commands parse (`liquidgs.settings`"
         " and the configuration dataclasses; the benchmarks' parsers), so it cannot drift from the"
-        " code. `liquidgs COMMAND --help` prints the same flags. Booleans are switches: `--name`"
-        " sets them, `--no-name` clears them.",
+        " code. `liquidgs COMMAND --help` prints the same flags. Booleans are switches: `--resume`"
+        " sets one, `--no-resume` clears it.",
         "",
     ]
     for command in commands():
