@@ -1,6 +1,8 @@
 # Two commands do all set-up on a fresh machine:
 #   make demo   - train MLP / CfC / SDE-LNN on the built-in synthetic scene, write a report
 #   make test   - the whole test suite (what .ci/run calls)
+#   make docs   - the documentation site (docs/, mkdocs.yml) into build/site, offline, warnings as
+#                 errors; installs the `docs` extra into .venv first (CI runs it after make test)
 # and one opt-in target:
 #   make lpips-reference - re-check (or, with LPIPS_REFERENCE=write, re-record) the PyPI lpips
 #                          distances that tests/test_lpips_reference.py holds ours to; it builds
@@ -13,7 +15,7 @@ LPIPS_REF := .venv-lpips-ref
 LPIPS_RECORD := tests/data/lpips_pypi_reference.json
 LPIPS_REFERENCE ?= check
 
-.PHONY: demo test lint setup lpips-reference
+.PHONY: demo test docs lint setup lpips-reference
 
 # As the liquidgs command does (liquidgs/__init__.py): idle OpenMP threads sleep, not spin.
 export OMP_WAIT_POLICY ?= PASSIVE
@@ -38,6 +40,13 @@ test: $(BIN)/liquidgs
 	bash scripts/setup_browser.sh
 	$(BIN)/ruff check src tests
 	$(BIN)/python -m pytest -q tests
+
+$(BIN)/mkdocs: $(BIN)/liquidgs pyproject.toml
+	$(BIN)/python -m pip install -q -e ".[docs]"
+	touch $(BIN)/mkdocs
+
+docs: $(BIN)/mkdocs
+	$(BIN)/mkdocs build --strict
 
 lint: $(BIN)/liquidgs
 	$(BIN)/ruff check src tests

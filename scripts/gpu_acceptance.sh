@@ -2,7 +2,7 @@
 # The GPU acceptance in one command, for the day a GPU machine is lent (15 minutes in all):
 #   bash scripts/gpu_acceptance.sh SCENE [SECONDS]        e.g. .scene/hellwarrior 780
 #   bash scripts/gpu_acceptance.sh --dry-run SCENE [SECONDS]
-# 1. installs what the machine lacks: wheels from .whl/ (carried there; see README "GPU") into
+# 1. installs what the machine lacks: wheels from .whl/ (carried there; see docs/gpu.md) into
 #    /tmp/site, and liquidgs itself from src/ (PYTHONPATH; the machine's own torch is kept);
 # 2. builds gsplat's CUDA kernels for the GPU it finds (timed), into .gsplat-build/ so a later
 #    command that carries that folder reuses the build;

@@ -181,7 +181,7 @@ def test_times_follow_frame_order_and_data_check_passes_at_every_scale(video_sce
         assert report.images_decoded == FRAMES
         assert (frames[0].camera.width, frames[0].camera.height) == (width // downscale, height // downscale)
     dataset = json.loads((out / "dataset.json").read_text())
-    assert dataset["val_ids"] == [f"{n:06d}" for n in range(4, FRAMES, 8)]  # every 8th, stated in the README
+    assert dataset["val_ids"] == [f"{n:06d}" for n in range(4, FRAMES, 8)]  # every 8th, stated in docs/own-video.md
     assert json.loads((out / "capture.json").read_text())["holdout_every"] == 8
     code, stdout, _ = run_cli(["data", "check", str(out)])
     assert code == 0 and f"frames:     train {FRAMES - 4}, test 4" in stdout

@@ -1,4 +1,4 @@
-"""The README's main command, end to end on a small scale."""
+"""The main command (`make demo`), end to end on a small scale."""
 
 import imageio.v2 as imageio
 import numpy as np

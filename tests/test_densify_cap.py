@@ -13,7 +13,7 @@ from liquidgs.train.strategy import D3DGSStrategy, DensifyConfig
 from test_strategy import make_info, make_setup
 from tiny_runs import run_cli
 
-README = Path(__file__).resolve().parents[1] / "README.md"
+OWN_VIDEO_PAGE = Path(__file__).resolve().parents[1] / "docs" / "own-video.md"
 
 
 def test_an_uncapped_config_has_the_version_1_identity_of_before_the_cap_existed():
@@ -90,14 +90,14 @@ def test_a_capped_training_stays_under_the_cap_where_the_uncapped_one_passes_it(
     assert counts["uncapped"] > 32 * 32 >= counts["capped"]
 
 
-def test_the_quick_look_is_the_one_the_readme_names():
+def test_the_quick_look_is_the_one_the_docs_name():
     """The commands `data video` prints for a 16:9 clip captured at the default --max-size 800
-    (800x448) into scenes/clip are in the README's "Your own video", word for word."""
+    (800x448) into scenes/clip are in the docs' "Your own video", step 4, word for word."""
     lines = quick_look_commands(Path("scenes/clip"), (800, 448))
     commands = [line.strip() for line in lines if line.strip().startswith("liquidgs ")]
     assert len(commands) == 2 and "--downscale 4" in commands[0] and "--densify.max-per-pixel" in commands[0]
-    readme = README.read_text()
-    section = readme[readme.index("## Your own video") :]
+    page = OWN_VIDEO_PAGE.read_text()
+    section = page[page.index("## 4. The quick look on a CPU") :]
     section = section[: section.index("\n## ", 1)]
     for command in commands:
         assert command in section, command

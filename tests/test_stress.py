@@ -461,7 +461,7 @@ def test_the_report_answers_does_noise_help_on_hand_built_runs(tmp_path):
 # as a change of seed, because float rounding sends training elsewhere. So the second machine here
 # re-draws every run's run-to-run part (the worst case): a run's offset (0.09 dB std, stress-mini's
 # seed spread), the OU runs' extra spread, and the views' noise. The effects stay: the size
-# stress-mini measured (README), constant noise +0.03 dB, OU noise -0.5 dB.
+# stress-mini measured (docs/results/stress.md), constant noise +0.03 dB, OU noise -0.5 dB.
 RUN_DB, VIEW_DB = 0.09, 0.05
 EFFECTS = {"cfc": (0.0, 0.0), "sde-l0.1": (0.03, 0.0), "sde-ou": (-0.5, 0.2)}
 

@@ -153,4 +153,12 @@ def main(argv: list[str]) -> int:
         return report(parse_flags(ReportArgs, rest, prog="liquidgs experiment report", description=__doc__), console)
     if action == "list":
         return list_specs()
-    raise ConfigError(f"unknown experiment action '{action}' (run, report or list)")
+    raise ConfigError(f"unknown experiment action '{action}' ({', '.join(ACTIONS)})")
+
+
+# Each action's settings (none for list) and one line on what it does (the command catalog's).
+ACTIONS: dict[str, tuple[type | None, str]] = {
+    "run": (RunArgs, "Train every run of a spec (skipping finished runs, resuming interrupted ones)"),
+    "report": (ReportArgs, "The paper's tables, seed spread, margins and figures from an experiment's runs"),
+    "list": (None, "The built-in specs, each with its number of runs"),
+}

@@ -41,7 +41,7 @@ def default_run_dir(cfg: TrainConfig) -> Path:
     return run_folder(cfg, Path("outputs") / cfg.data.path.resolve().name / cfg.field)
 
 
-def _config_file(argv: list[str]) -> tuple[Path | None, list[str]]:
+def config_file_argument(argv: list[str]) -> tuple[Path | None, list[str]]:
     """--config FILE (a resolved run configuration, e.g. written by an experiment), and the rest."""
     if "--config" not in argv:
         return None, argv
@@ -61,7 +61,7 @@ def resolve_config(argv: list[str]) -> tuple[TrainConfig, Path]:
     command line on top; every setting parsed once and checked when the config is built."""
     if wants_help(argv):
         print_help(TrainConfig, "liquidgs train", __doc__, preset_config(_help_preset(argv), Path(".")))
-    config_file, argv = _config_file(argv)
+    config_file, argv = config_file_argument(argv)
     flags = parse_flag_settings(TrainConfig, argv, "liquidgs train")
     out, stored = flags.get("out"), None
     if flags.get("resume"):

@@ -1,0 +1,208 @@
+"""The documentation is tested: every relative link and anchor in README.md and the docs pages
+resolves, and every `liquidgs ...` command line they show parses with the current flags. Each problem
+is one line naming the page and the line. No MkDocs needed (`make docs` builds the site itself)."""
+
+from __future__ import annotations
+
+import importlib.util
+import re
+import unicodedata
+from pathlib import Path
+
+import pytest
+
+from liquidgs.commands.catalog import all_option_strings, check_command_line, commands
+from liquidgs.errors import ConfigError
+
+ROOT = Path(__file__).resolve().parents[1]
+DOCS = ROOT / "docs"
+
+FENCE = re.compile(r"^\s*(```|~~~)")
+LINK = re.compile(r"!?\[[^\]]*\]\(([^)\s]+)(?:\s+\"[^\"]*\")?\)")
+INLINE_CODE = re.compile(r"(`+)(.+?)\1")
+HEADING = re.compile(r"^(#{1,6})\s+(.*?)\s*#*\s*$")
+SHELLS = {"", "bash", "sh", "shell", "console"}
+
+
+def generated_pages() -> dict[str, str]:
+    """The pages `make docs` writes from the code (scripts/docs_hooks.py), by path under docs/."""
+    spec = importlib.util.spec_from_file_location("docs_hooks", ROOT / "scripts" / "docs_hooks.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module.generated_pages()
+
+
+GENERATED = generated_pages()
+
+
+def pages() -> dict[Path, str]:
+    """Every page as the site and GitHub show it: README.md, docs/**/*.md, and the generated ones."""
+    out = {ROOT / "README.md": (ROOT / "README.md").read_text()}
+    out.update({path: path.read_text() for path in sorted(DOCS.rglob("*.md"))})
+    out.update({DOCS / name: text for name, text in GENERATED.items()})
+    return out
+
+
+PAGES = pages()
+
+
+def mkdocs_slug(text: str) -> str:
+    """The anchor MkDocs gives a heading (Python-Markdown's toc slugify)."""
+    text = unicodedata.normalize("NFKD", text).encode("ascii", "ignore").decode("ascii")
+    text = re.sub(r"[^\w\s-]", "", text).strip().lower()
+    return re.sub(r"[-\s]+", "-", text)
+
+
+def github_slug(text: str) -> str:
+    """The anchor GitHub gives a heading of a Markdown file it shows (README.md)."""
+    return re.sub(r"[^\w\- ]", "", text.lower()).replace(" ", "-")
+
+
+def prose_lines(text: str):
+    """(line number, line, in a shell code block?) for each line; fence lines themselves skipped."""
+    fence, shell = None, False
+    for number, line in enumerate(text.splitlines(), 1):
+        match = FENCE.match(line)
+        if match and (fence is None or line.strip().startswith(fence)):
+            if fence is None:
+                fence, shell = match.group(1), line.strip()[3:].strip().lower() in SHELLS
+            else:
+                fence = None
+            continue
+        yield number, line, fence is not None, shell
+
+
+def anchors(path: Path) -> set[str]:
+    slug = github_slug if path == ROOT / "README.md" else mkdocs_slug
+    seen: dict[str, int] = {}
+    out = set()
+    for _, line, in_code, _ in prose_lines(PAGES[path]):
+        heading = HEADING.match(line)
+        if in_code or not heading:
+            continue
+        text = re.sub(r"`([^`]*)`", r"\1", heading.group(2))
+        text = re.sub(r"\[([^\]]*)\]\([^)]*\)", r"\1", text)
+        anchor = slug(text)
+        count = seen.get(anchor, 0)
+        seen[anchor] = count + 1
+        out.add(anchor if count == 0 else f"{anchor}_{count}" if slug is mkdocs_slug else f"{anchor}-{count}")
+    return out
+
+
+def link_problem(page: Path, target: str) -> str | None:
+    if re.match(r"^[a-z][a-z0-9+.-]*:", target):  # http:, https:, mailto:
+        return None
+    where, _, anchor = target.partition("#")
+    resolved = (page.parent / where).resolve() if where else page
+    if resolved not in PAGES and not resolved.exists():
+        return f"broken link '{target}': no {resolved.relative_to(ROOT) if resolved.is_relative_to(ROOT) else resolved}"
+    if anchor and resolved.suffix == ".md":
+        if resolved not in PAGES:
+            return f"link '{target}': {resolved.name} is not a documentation page"
+        if anchor not in anchors(resolved):
+            return f"broken anchor '{target}': no heading '#{anchor}' in {resolved.relative_to(ROOT)}"
+    return None
+
+
+COMMAND_NAMES = {command.name for command in commands()} | {"liquidgs"}
+
+
+def names_a_command(code: str) -> bool:
+    """Prose names a command (`liquidgs data video`) or a command family with a placeholder
+    (`liquidgs COMMAND --help`, `liquidgs bench raster|fields`): not a command line to parse."""
+    words = code.split()
+    return code in COMMAND_NAMES or any(word.isupper() or "|" in word for word in words[1:3])
+
+
+def command_problem(line: str) -> str | None:
+    try:
+        check_command_line(line)
+    except ConfigError as err:
+        return f"'{line.strip()}' does not parse: {err}"
+    return None
+
+
+def shell_commands(text: str):
+    """(line number, command) of each `liquidgs ...` line in the shell code blocks (continuations joined)."""
+    pending, start = "", 0
+    for number, line, in_code, shell in prose_lines(text):
+        if not (in_code and shell):
+            continue
+        line = line.strip().removeprefix("$ ")
+        if pending:
+            line, number = pending + " " + line, start
+            pending = ""
+        if line.endswith("\\"):
+            pending, start = line[:-1], number
+            continue
+        if line.startswith("liquidgs "):
+            yield number, line
+
+
+def problems(path: Path) -> list[str]:
+    text = PAGES[path]
+    name = path.relative_to(ROOT)
+    options = all_option_strings()
+    found = []
+    for number, line, in_code, _ in prose_lines(text):
+        if in_code:
+            continue
+        prose = INLINE_CODE.sub("", line)
+        for target in LINK.findall(prose):
+            problem = link_problem(path, target)
+            if problem:
+                found.append(f"{name}:{number}: {problem}")
+        for _, code in INLINE_CODE.findall(line):
+            code = code.strip()
+            if code.startswith("liquidgs ") and not names_a_command(code):
+                problem = command_problem(code)
+            elif re.fullmatch(r"--[a-z][a-z0-9.-]*", code.split(" ")[0]) and code.split(" ")[0] not in options:
+                problem = f"flag '{code.split(' ')[0]}' is no flag of any liquidgs command"
+            else:
+                problem = None
+            if problem:
+                found.append(f"{name}:{number}: {problem}")
+    for number, command in shell_commands(text):
+        problem = command_problem(command)
+        if problem:
+            found.append(f"{name}:{number}: {problem}")
+    return found
+
+
+@pytest.mark.parametrize("path", list(PAGES), ids=lambda p: str(p.relative_to(ROOT)))
+def test_links_resolve_and_commands_parse(path):
+    found = problems(path)
+    assert not found, "\n".join(found)
+
+
+def test_a_broken_link_a_missing_anchor_and_a_removed_flag_are_each_one_line(tmp_path):
+    page = DOCS / "getting-started.md"
+    PAGES[page] = PAGES[page] + (
+        "\nSee [the demo](results/nowhere.md) and [presets](training.md#no-such-heading).\n"
+        "```bash\nliquidgs train --data scenes/x --no-such-flag 3\n```\n"
+        "Or `--densify.no-such-setting 2`.\n"
+    )
+    try:
+        found = problems(page)
+    finally:
+        PAGES[page] = page.read_text()
+    lines = len(PAGES[page].splitlines())
+    assert len(found) == 4, found
+    assert found[0].startswith(f"docs/getting-started.md:{lines + 2}: broken link 'results/nowhere.md'")
+    assert found[1].startswith(f"docs/getting-started.md:{lines + 2}: broken anchor 'training.md#no-such-heading'")
+    assert found[2].startswith(f"docs/getting-started.md:{lines + 6}: flag '--densify.no-such-setting'")
+    assert found[3].startswith(f"docs/getting-started.md:{lines + 4}: 'liquidgs train --data scenes/x --no-such-flag")
+    assert "unrecognized arguments: --no-such-flag" in found[3]
+    assert all("\n" not in line for line in found)
+
+
+def test_slugs_are_those_mkdocs_and_github_give():
+    assert mkdocs_slug("7. A lens: data undistort") == "7-a-lens-data-undistort"
+    assert mkdocs_slug("The paper's protocol, setting by setting") == "the-papers-protocol-setting-by-setting"
+    assert github_slug("What the demo shows (measured)") == "what-the-demo-shows-measured"
+
+
+def test_the_cli_reference_lists_every_flag_of_every_command():
+    reference = GENERATED["reference/cli.md"]
+    for option in all_option_strings() - {"--help", "-h", "--config"}:
+        assert f"`{option}`" in reference, option
