@@ -188,7 +188,8 @@ class FieldRegistry:
             return  # one package's two entry points for the same registration
         elif not first.plugin:
             self._refuse(
-                f"field plugin package '{package}' cannot register '{name}': it is a built-in field (the built-in is kept)"
+                f"field plugin package '{package}' cannot register '{name}': "
+                "it is a built-in field (the built-in is kept)"
             )
         else:
             del self._fields[name]
