@@ -22,7 +22,7 @@ from collections.abc import Callable, Iterator
 
 import torch
 
-from liquidgs.errors import ConfigError, one_line
+from liquidgs.errors import ConfigError, LiquidGSError, one_line
 from liquidgs.fields.build import build_field
 from liquidgs.fields.config import PRESET_NAMES, FieldConfig
 from liquidgs.fields.registry import field_names, field_type
@@ -138,12 +138,11 @@ def benchmark(args, skip_broken: bool = False) -> Iterator[dict]:
             if not (skip_broken and kind.plugin):
                 raise
             broken.add(kind.name)
-            print(
-                f"liquidgs bench fields: warning: field '{kind.name}' (package {kind.origin}) skipped: "
-                f"{one_line(f'{type(error).__name__}: {error}')}",
-                file=sys.stderr,
-                flush=True,
-            )
+            if isinstance(error, LiquidGSError):  # build_field's: it names the field and its package
+                detail = str(error)
+            else:
+                detail = f"field '{kind.name}' (package {kind.origin}): {type(error).__name__}: {error}"
+            print(f"liquidgs bench fields: warning: skipped {one_line(detail)}", file=sys.stderr, flush=True)
 
 
 def _rows(label: str, preset: str, config: FieldConfig, device, device_name: str, args) -> Iterator[dict]:
