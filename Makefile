@@ -36,10 +36,11 @@ setup: $(BIN)/liquidgs
 demo: $(BIN)/liquidgs
 	$(BIN)/liquidgs demo --out report
 
+# examples/field-plugin's own tests too: the template plugin, loaded from its checkout (not installed).
 test: $(BIN)/liquidgs
 	bash scripts/setup_browser.sh
-	$(BIN)/ruff check src tests
-	$(BIN)/python -m pytest -q tests
+	$(BIN)/ruff check src tests examples
+	$(BIN)/python -m pytest -q tests examples/field-plugin/tests
 
 $(BIN)/mkdocs: $(BIN)/liquidgs pyproject.toml
 	$(BIN)/python -m pip install -q -e ".[docs]"
@@ -49,7 +50,7 @@ docs: $(BIN)/mkdocs
 	$(BIN)/mkdocs build --strict
 
 lint: $(BIN)/liquidgs
-	$(BIN)/ruff check src tests
+	$(BIN)/ruff check src tests examples
 
 lpips-reference: $(BIN)/liquidgs $(LPIPS_REF)/installed
 	env -u PYTHONPATH $(LPIPS_REF)/bin/python tests/lpips_reference.py $(LPIPS_REFERENCE) $(LPIPS_RECORD)

@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from field_plugins import use_registry, write_plugin
+from field_plugins import plugin, use_registry, write_plugin
 from liquidgs.cli import main as cli
 from liquidgs.data import generate_synthetic
 from liquidgs.errors import ConfigError
@@ -89,7 +89,7 @@ def small_scene(tmp_path_factory) -> Path:
 @pytest.fixture
 def toy_registry(tmp_path, monkeypatch):
     entry = write_plugin(tmp_path, "toy_fields", TOY_PLUGIN, monkeypatch)
-    return use_registry(monkeypatch, [("toy-fields", entry)])
+    return use_registry(monkeypatch, [plugin("toy-fields", entry)])
 
 
 def test_builtin_fields_and_hexplane_register_through_the_public_api(monkeypatch):
@@ -178,7 +178,7 @@ def test_the_regulariser_is_added_to_the_loss_after_the_warm_up_only(small_scene
 def test_a_plugin_that_fails_to_import_is_one_line_and_the_rest_still_works(tmp_path, monkeypatch, capsys):
     broken = write_plugin(tmp_path, "broken_fields", "import not_a_module_anywhere\n", monkeypatch)
     toy = write_plugin(tmp_path, "toy_fields", TOY_PLUGIN, monkeypatch)
-    use_registry(monkeypatch, [("broken-fields", broken), ("toy-fields", toy)])
+    use_registry(monkeypatch, [plugin("broken-fields", broken), plugin("toy-fields", toy)])
     assert field_names() == ("static", "mlp", "cfc", "sde", "hexplane", "toy")
     line = (
         "field plugin package 'broken-fields' failed to load (broken_fields = broken_fields:register): "
@@ -198,7 +198,7 @@ def test_a_plugin_that_fails_to_import_is_one_line_and_the_rest_still_works(tmp_
 def test_two_packages_registering_one_name_is_one_line_naming_both(tmp_path, monkeypatch, capsys):
     first = write_plugin(tmp_path, "twin_a", TOY_PLUGIN.replace('"toy"', '"twin"'), monkeypatch)
     second = write_plugin(tmp_path, "twin_b", TOY_PLUGIN.replace('"toy"', '"twin"'), monkeypatch)
-    use_registry(monkeypatch, [("pkg-a", first), ("pkg-b", second)])
+    use_registry(monkeypatch, [plugin("pkg-a", first), plugin("pkg-b", second)])
     assert "twin" not in field_names() and "mlp" in field_names()
     line = "field 'twin' is registered by two packages, 'pkg-a' and 'pkg-b': uninstall one"
     assert capsys.readouterr().err == f"liquidgs: warning: {line}\n"
@@ -206,9 +206,10 @@ def test_two_packages_registering_one_name_is_one_line_naming_both(tmp_path, mon
         FieldConfig(name="twin", preset="tiny")
     assert str(err.value) == line
     with pytest.raises(
-        ConfigError, match="field 'mlp' is registered by two packages, 'liquidgs' and 'test_field_registry'"
+        ConfigError, match="package 'test_field_registry' cannot register 'mlp': it is a built-in field"
     ):
         register("mlp", lambda config: None, presets=["tiny"])
+    assert field_type("mlp").package == "liquidgs"
 
 
 @pytest.mark.parametrize(
@@ -232,7 +233,7 @@ def test_bad_registrations_are_refused(monkeypatch, kwargs, message):
 
 def test_a_field_with_wrong_shapes_fails_before_the_first_step_naming_it(small_scene, tmp_path, monkeypatch, capsys):
     entry = write_plugin(tmp_path, "lopsided_fields", LOPSIDED_PLUGIN, monkeypatch)
-    use_registry(monkeypatch, [("lopsided-fields", entry)])
+    use_registry(monkeypatch, [plugin("lopsided-fields", entry)])
     out = tmp_path / "run"
     assert cli(["train", "--data", str(small_scene), "--field", "lopsided", "--out", str(out), *SMOKE_FLAGS]) == 2
     err = capsys.readouterr().err

@@ -11,6 +11,11 @@ dataclass's `__post_init__` (its validation) runs on the final values:
 
 A usage error is one line (a ConfigError) through argparse's documented `error` hook; no code
 reads tyro's rendered help text.
+
+A group whose settings depend on the config's other values (train's field_options: a plugin
+field's own options) is named by two class methods of the config: `settings_group(key, raw)`,
+the group's class for the config's plain values, and `settings_extra_flags()`, the flags of the
+settings such groups may hold beyond their declared class (not in tyro's --help).
 """
 
 from __future__ import annotations
@@ -77,6 +82,11 @@ def _items(hint) -> tuple | None:
 
 def _item_types(items: tuple, count: int) -> list:
     return [items[0]] * count if items[-1] is Ellipsis else list(items)
+
+
+def nested_class(cls, key: str) -> type | None:
+    """The dataclass the setting `key` of `cls` groups, as declared."""
+    return _nested(_hints(cls)[key])
 
 
 def _nested(hint) -> type | None:
@@ -151,7 +161,7 @@ def from_dict(cls: type[T], raw, source: str | Path = "config", prefix: str = ""
     for key, value in raw.items():
         if key not in fields:
             raise ConfigError(f"{source}: unknown setting '{prefix}{key}' for {cls.__name__}")
-        group = _nested(hints[key])
+        group = _group(cls, key, raw)
         if group is not None:
             kwargs[key] = from_dict(group, value, source, f"{prefix}{key}.")
         elif not matches(value, hints[key]):
@@ -167,6 +177,14 @@ def from_dict(cls: type[T], raw, source: str | Path = "config", prefix: str = ""
         raise
 
 
+def _group(cls, key: str, raw: dict) -> type | None:
+    """The dataclass the setting `key` of `cls` groups (given the config's plain values), if any."""
+    group = _nested(_hints(cls)[key])
+    if group is not None and hasattr(cls, "settings_group"):
+        return cls.settings_group(key, raw)
+    return group
+
+
 def _required(field: dataclasses.Field) -> bool:
     return field.default is dataclasses.MISSING and field.default_factory is dataclasses.MISSING
 
@@ -176,15 +194,23 @@ def with_settings(obj: T, settings: dict[str, Any], source: str | Path = "settin
     raw = to_dict(obj)
     for dotted, value in settings.items():
         *groups, last = dotted.split(".")
+        node = raw
+        for part in groups:
+            if not isinstance(node.get(part), dict):
+                raise ConfigError(f"{source}: unknown setting '{dotted}'")
+            node = node[part]
+        node[last] = to_dict_value(value)
+    # Checked once every value is in: which settings a group has can depend on the others.
+    for dotted in settings:
+        *groups, last = dotted.split(".")
         node, cls = raw, type(obj)
         for part in groups:
-            group = _nested(_hints(cls).get(part)) if part in _hints(cls) else None
+            group = _group(cls, part, node) if part in _hints(cls) else None
             if group is None:
                 raise ConfigError(f"{source}: unknown setting '{dotted}'")
             node, cls = node[part], group
         if last not in _hints(cls) or _nested(_hints(cls)[last]) is not None:
             raise ConfigError(f"{source}: unknown setting '{dotted}'")
-        node[last] = to_dict_value(value)
     return from_dict(type(obj), raw, source)
 
 
@@ -251,6 +277,12 @@ def flags_of(cls, prefix: str = "", flag_prefix: str = "") -> list[Flag]:
     return out
 
 
+def command_flags(cls) -> list[Flag]:
+    """The flags a command accepts: flags_of(cls) and the config's settings_extra_flags()."""
+    extra = cls.settings_extra_flags() if hasattr(cls, "settings_extra_flags") else []
+    return flags_of(cls) + extra
+
+
 def option_strings(flag: Flag) -> list[str]:
     if flag.positional:
         return []
@@ -305,7 +337,8 @@ class ArgumentParser(argparse.ArgumentParser):
 def parse_flag_settings(cls, argv: list[str], prog: str) -> dict[str, Any]:
     """The settings the flags in argv give, as {dotted key: typed value}; only those given."""
     parser = ArgumentParser(prog=prog, add_help=False, allow_abbrev=False)
-    for flag in flags_of(cls):
+    flags = command_flags(cls)
+    for flag in flags:
         strings = option_strings(flag)
         hint = _strip(flag.hint)
         if not strings:
@@ -322,7 +355,7 @@ def parse_flag_settings(cls, argv: list[str], prog: str) -> dict[str, Any]:
             nargs = None if items is None else "*" if items[-1] is Ellipsis else len(items)
             parser.add_argument(strings[0], dest=flag.key, nargs=nargs, default=argparse.SUPPRESS)
     values = vars(parser.parse_args(argv))
-    hints = {flag.key: (flag.hint, "--" + flag.flag) for flag in flags_of(cls)}
+    hints = {flag.key: (flag.hint, "--" + flag.flag) for flag in flags}
     settings = {}
     for key, value in values.items():
         hint, flag = hints[key]
@@ -379,7 +412,7 @@ def setting_keys(cls, named: dict[str, Any], source: str | Path = "settings") ->
     """Settings named by dotted key ('data.downscale') or by flag ('downscale', 'eval.lpips-normalize'),
     by dotted key."""
     keys = {}
-    for flag in flags_of(cls):
+    for flag in command_flags(cls):
         keys[flag.key] = flag.key
         keys[flag.flag] = keys[flag.flag.replace("-", "_")] = flag.key
     out = {}
@@ -392,7 +425,7 @@ def setting_keys(cls, named: dict[str, Any], source: str | Path = "settings") ->
 
 def to_flags(cls, named: dict[str, Any]) -> list[str]:
     """Command-line flags that give these settings (named by dotted key or flag)."""
-    by_key = {flag.key: flag for flag in flags_of(cls)}
+    by_key = {flag.key: flag for flag in command_flags(cls)}
     args: list[str] = []
     for key, value in setting_keys(cls, named).items():
         flag = by_key[key]

@@ -22,7 +22,7 @@ from collections.abc import Callable, Iterator
 
 import torch
 
-from liquidgs.errors import ConfigError
+from liquidgs.errors import ConfigError, LiquidGSError, one_line
 from liquidgs.fields.build import build_field
 from liquidgs.fields.config import PRESET_NAMES, FieldConfig
 from liquidgs.fields.registry import field_names, field_type
@@ -100,7 +100,8 @@ def _median_seconds(field, n: int, device: torch.device, backward: bool, args) -
     return statistics.median(times)
 
 
-def _cases(args) -> list[tuple[str, str, FieldConfig]]:
+def _cases(args) -> list[tuple[str, str, dict]]:
+    """(row label, preset, FieldConfig settings) of every row."""
     cases = []
     for preset in args.presets:
         # A field without sizes for this preset (a plugin may have fewer) has no row for it.
@@ -108,19 +109,14 @@ def _cases(args) -> list[tuple[str, str, FieldConfig]]:
         if args.variants:
             labels.update(VARIANTS)
         for label, settings in labels.items():
-            noisy = settings["name"] == "sde"
-            cases.append(
-                (
-                    label,
-                    preset,
-                    FieldConfig(preset=preset, lambda_=args.lambda_ if noisy else 0.0, **settings),
-                )
-            )
+            noisy = field_type(settings["name"]).default_lambda is not None
+            cases.append((label, preset, dict(settings, lambda_=args.lambda_ if noisy else 0.0)))
     return cases
 
 
-def benchmark(args) -> Iterator[dict]:
-    """Run every case, yielding one row per (field, preset, size) as soon as it is measured."""
+def benchmark(args, skip_broken: bool = False) -> Iterator[dict]:
+    """Run every case, yielding one row per (field, preset, size) as soon as it is measured.
+    skip_broken: a plugin field that fails is one warning line and the others are still measured."""
     if args.device == "auto":
         device = torch.device("cuda" if torch.cuda.is_available() else "cpu")
     else:
@@ -131,34 +127,52 @@ def benchmark(args) -> Iterator[dict]:
     if args.threads > 0:
         torch.set_num_threads(args.threads)
     device_name = torch.cuda.get_device_name(device) if device.type == "cuda" else "cpu"
-    for label, preset, config in _cases(args):
-        torch.manual_seed(args.seed)
-        field = build_field(config).to(device)
-        for n in args.sizes:
-            field.eval()
-            fwd = _median_seconds(field, n, device, False, args)
-            fwd_bwd = None
-            if field.num_parameters() > 0:
-                field.train()
-                fwd_bwd = _median_seconds(field, n, device, True, args)
-                field.zero_grad(set_to_none=True)
-            yield {
-                "field": label,
-                "preset": preset,
-                "gaussians": n,
-                "params": field.num_parameters(),
-                "flops_per_gaussian": field.flops_per_gaussian(),
-                "forward_gaussians_per_s": n / fwd,
-                "forward_backward_gaussians_per_s": None if fwd_bwd is None else n / fwd_bwd,
-                "forward_ms": 1e3 * fwd,
-                "forward_backward_ms": None if fwd_bwd is None else 1e3 * fwd_bwd,
-                "lambda": config.resolved().lambda_,
-                "device": str(device),
-                "device_name": device_name,
-                "threads": torch.get_num_threads(),
-                "dtype": "float32",
-                "torch": torch.__version__,
-            }
+    broken: set[str] = set()
+    for label, preset, settings in _cases(args):
+        kind = field_type(settings["name"])
+        if kind.name in broken:
+            continue
+        try:
+            yield from _rows(label, preset, FieldConfig(preset=preset, **settings), device, device_name, args)
+        except Exception as error:
+            if not (skip_broken and kind.plugin):
+                raise
+            broken.add(kind.name)
+            if isinstance(error, LiquidGSError):  # build_field's: it names the field and its package
+                detail = str(error)
+            else:
+                detail = f"field '{kind.name}' (package {kind.origin}): {type(error).__name__}: {error}"
+            print(f"liquidgs bench fields: warning: skipped {one_line(detail)}", file=sys.stderr, flush=True)
+
+
+def _rows(label: str, preset: str, config: FieldConfig, device, device_name: str, args) -> Iterator[dict]:
+    torch.manual_seed(args.seed)
+    field = build_field(config).to(device)
+    for n in args.sizes:
+        field.eval()
+        fwd = _median_seconds(field, n, device, False, args)
+        fwd_bwd = None
+        if field.num_parameters() > 0:
+            field.train()
+            fwd_bwd = _median_seconds(field, n, device, True, args)
+            field.zero_grad(set_to_none=True)
+        yield {
+            "field": label,
+            "preset": preset,
+            "gaussians": n,
+            "params": field.num_parameters(),
+            "flops_per_gaussian": field.flops_per_gaussian(),
+            "forward_gaussians_per_s": n / fwd,
+            "forward_backward_gaussians_per_s": None if fwd_bwd is None else n / fwd_bwd,
+            "forward_ms": 1e3 * fwd,
+            "forward_backward_ms": None if fwd_bwd is None else 1e3 * fwd_bwd,
+            "lambda": config.resolved().lambda_,
+            "device": str(device),
+            "device_name": device_name,
+            "threads": torch.get_num_threads(),
+            "dtype": "float32",
+            "torch": torch.__version__,
+        }
 
 
 def _table(rows: list[dict]) -> str:
@@ -183,6 +197,8 @@ def main(argv: list[str]) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
+    # Every registered field unless named: then a broken plugin is skipped with a warning, not fatal.
+    skip_broken = not args.fields
     args.fields = args.fields or list(field_names())
     for name in args.fields:
         field_type(name)  # an unknown name: one line with the registered ones
@@ -194,10 +210,10 @@ def run(args: argparse.Namespace) -> int:
         if name not in PRESET_NAMES:
             raise ConfigError(f"unknown preset '{name}' (choose from {', '.join(PRESET_NAMES)})")
     if args.json:
-        for row in benchmark(args):
+        for row in benchmark(args, skip_broken):
             print(json.dumps(row), flush=True)
     else:
-        print(_table(list(benchmark(args))))
+        print(_table(list(benchmark(args, skip_broken))))
     return 0
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from liquidgs.fields.base import StaticField
+from liquidgs.fields.config import PAPER_LAMBDA
 from liquidgs.fields.liquid import LiquidField
 from liquidgs.fields.mlp import MLPField
 from liquidgs.fields.presets import PRESET_NAMES
@@ -14,4 +15,4 @@ def register_builtin_fields() -> None:
     register("static", StaticField, presets=PRESET_NAMES, label="Static", family="static")
     register("mlp", MLPField, presets=PRESET_NAMES, label="D-3DGS (MLP)", family="mlp")
     register("cfc", LiquidField, presets=PRESET_NAMES, label="Liquid CfC", family="liquid")
-    register("sde", LiquidField, presets=PRESET_NAMES, label="SDE-LNN", family="liquid")
+    register("sde", LiquidField, presets=PRESET_NAMES, label="SDE-LNN", family="liquid", default_lambda=PAPER_LAMBDA)

@@ -11,9 +11,11 @@ built, so a bad setting fails early with a ConfigError.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
+import typing
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal
 
 from liquidgs.errors import ConfigError
 from liquidgs.fields.presets import FAMILY_SIZES, PRESET_NAMES, PRESETS
@@ -33,8 +35,9 @@ PAPER_LAMBDA = 0.05
 
 
 def default_lambda(name: str) -> float:
-    """The noise level of a field whose lambda is not given: the paper's for 'sde', else 0."""
-    return PAPER_LAMBDA if name == "sde" else 0.0
+    """The noise level of a field whose lambda is not given: the one a stochastic field registered
+    (the paper's for 'sde'), else 0."""
+    return field_type(name).default_lambda or 0.0
 
 
 def check_choice(kind: str, value: str, choices: tuple[str, ...]) -> None:
@@ -104,14 +107,30 @@ class FieldConfig(FieldOptions):
     """A registered field (fields/registry.py)."""
     preset: PresetName = "dnerf"
     lambda_: float | None = None
-    """Noise level of the 'sde' field (None: 0.05, the paper's value); must be 0 for the others."""
+    """Noise level of a stochastic field (None: the one it registered, 0.05 for 'sde'); must be 0
+    for the others."""
+    options: Any = None
+    """The field's own settings, an instance of the options dataclass it registered (None: its
+    defaults); None for a field that registered none."""
 
     @classmethod
     def of(cls, options: FieldOptions, name: str, preset: str, lambda_: float | None) -> FieldConfig:
-        return cls(**dataclasses.asdict(options), name=name, preset=preset, lambda_=lambda_)
+        """The config of field `name` from a run's field_options (field_options_class(name))."""
+        shared = {f.name: getattr(options, f.name) for f in dataclasses.fields(FieldOptions)}
+        own_class = field_type(name).options
+        own = None
+        if own_class is not None:
+            own = {f.name: getattr(options, f.name) for f in dataclasses.fields(own_class) if hasattr(options, f.name)}
+        return cls(**shared, name=name, preset=preset, lambda_=lambda_, options=own)
 
     def __post_init__(self) -> None:
         self._validate(self._resolved_values())
+        own_class = field_type(self.name).options
+        if own_class is None:
+            if self.options is not None:
+                raise ConfigError(f"field '{self.name}' has no options of its own, got {self.options!r}")
+        elif not isinstance(self.options, own_class):
+            self.options = _own_options(self.name, own_class, self.options or {})
 
     @property
     def base_lambda(self) -> float:
@@ -150,13 +169,16 @@ class FieldConfig(FieldOptions):
         lam = self.base_lambda
         if not math.isfinite(lam) or lam < 0:
             raise ConfigError(f"field: lambda must be a finite number >= 0, got {lam}")
-        if self.name != "sde":
-            if lam != 0:
-                raise ConfigError(f"field '{self.name}' is deterministic: lambda must be 0 (use 'sde')")
-            if (self.noise, self.lambda_schedule, self.adaptive_lambda) != ("gate", "constant", False):
-                raise ConfigError(
-                    f"noise, lambda_schedule and adaptive_lambda apply to the 'sde' field only, not to '{self.name}'"
-                )
+        if lam != 0 and field_type(self.name).default_lambda is None:
+            raise ConfigError(f"field '{self.name}' is deterministic: lambda must be 0 (use 'sde')")
+        if self.name != "sde" and (self.noise, self.lambda_schedule, self.adaptive_lambda) != (
+            "gate",
+            "constant",
+            False,
+        ):
+            raise ConfigError(
+                f"noise, lambda_schedule and adaptive_lambda apply to the 'sde' field only, not to '{self.name}'"
+            )
         for key, owner in FIELD_ONLY_OPTIONS.items():
             if getattr(self, key) is not None and self.name != owner:
                 raise ConfigError(f"{key} applies to the '{owner}' field only, not to '{self.name}'")
@@ -188,3 +210,80 @@ class FieldConfig(FieldOptions):
             raise ConfigError(f"field: ltc_leak must be a finite number >= 0, got {self.ltc_leak}")
         if self.ltc_leak > 0 and self.noise == "gate":
             raise ConfigError("field: ltc_leak applies to the hidden-state noise sites ('ou', 'solver') only")
+
+
+def _own_options(name: str, own_class: type, values: dict):
+    """A field's own options from their values, checked by the field's own rules (its __post_init__)."""
+    kind = field_type(name)
+    try:
+        return own_class(**values)
+    except ConfigError:
+        raise
+    except Exception as error:  # a plugin's rules: any exception is a bad setting, named
+        raise ConfigError(
+            f"field '{name}' (package {kind.origin}): bad --field-options: {type(error).__name__}: {error}"
+        ) from None
+
+
+SETTING_TYPES = "int, float, bool, str, a Literal, a tuple or list of those, or one of those or None"
+
+
+def check_options_class(name: str, options: type) -> None:
+    """The options a field registers: a dataclass whose settings all have defaults of a type
+    settings reads, named apart from the shared FieldOptions (their flags are one namespace)."""
+    from liquidgs import settings  # settings reads the field registry through train's config
+
+    if not (isinstance(options, type) and dataclasses.is_dataclass(options)):
+        raise ConfigError(f"field '{name}': options must be a dataclass, got {options!r}")
+    try:
+        hints = typing.get_type_hints(options)
+    except Exception as error:
+        raise ConfigError(f"field '{name}': options {options.__name__}: {type(error).__name__}: {error}") from None
+    shared = {f.name for f in dataclasses.fields(FieldConfig)}
+    for f in dataclasses.fields(options):
+        where = f"field '{name}': option '{f.name}'"
+        if f.name in shared:
+            raise ConfigError(f"{where} is a setting of every field (FieldOptions): choose another name")
+        if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
+            raise ConfigError(f"{where} needs a default")
+        default = f.default if f.default is not dataclasses.MISSING else f.default_factory()
+        try:
+            fits = settings.matches(settings.to_dict_value(default), hints[f.name])
+        except TypeError:
+            raise ConfigError(f"{where}: type {hints[f.name]} is not one settings read ({SETTING_TYPES})") from None
+        if not fits:
+            raise ConfigError(f"{where}: default {default!r} is not {settings.describe(hints[f.name])}")
+
+
+@functools.cache
+def _options_subclass(name: str, own_class: type) -> type:
+    hints = typing.get_type_hints(own_class)
+    own = [(f.name, hints[f.name], dataclasses.field(default=f.default, default_factory=f.default_factory))
+           for f in dataclasses.fields(own_class)]  # fmt: skip
+    return dataclasses.make_dataclass(
+        f"{own_class.__name__}FieldOptions", own, bases=(FieldOptions,), namespace={"__doc__": own_class.__doc__}
+    )
+
+
+def field_options_class(name: str) -> type[FieldOptions]:
+    """The class of a run's field_options for field `name`: FieldOptions, with the settings of the
+    field's own options dataclass where it registered one (so they are --field-options.* too)."""
+    try:
+        own_class = field_type(name).options
+    except ConfigError:  # an unknown field: the run's config names it in its own error
+        return FieldOptions
+    return FieldOptions if own_class is None else _options_subclass(name, own_class)
+
+
+def own_option_flags() -> dict[str, list]:
+    """Every registered field's own options: {setting name: [(field, type hint), ...]}."""
+    from liquidgs.fields.registry import field_names
+
+    found: dict[str, list] = {}
+    for name in field_names():
+        own_class = field_type(name).options
+        if own_class is not None:
+            hints = typing.get_type_hints(own_class)
+            for f in dataclasses.fields(own_class):
+                found.setdefault(f.name, []).append((name, hints[f.name]))
+    return found

@@ -39,9 +39,19 @@ The contract a field satisfies (fields/base.py's DeformationField; subclass it):
   grid at 10). A field's state that setup sets must be a parameter or a persistent buffer, so
   checkpoints carry it.
 
-Bad input: a plugin whose import or registration fails is reported in one line naming its package
-and the error, and every other field still works; two packages registering one name make that name
-unusable, with one line naming both.
+Own settings: a field may register `options`, a dataclass whose every setting has a default
+(int, float, bool, str, a Literal, a tuple, or one of those or None). Its settings are the field's
+--field-options.* (train, experiment spec overrides), stored in config.yml with the others and part
+of its runs' identity; the factory reads them as config.options, an instance of that dataclass
+(built, so validated by its __post_init__, when the config is). A stochastic field registers
+`default_lambda`, its noise level when --lambda is not given; it reads the run's as
+config.base_lambda (eval mode must stay deterministic).
+
+Bad input: a plugin whose import or registration fails (or exits) is reported in one line naming
+its package and the error, and every other field still works; a plugin cannot take a built-in
+field's name (one line naming it, the built-in is kept); two packages registering one name make
+that name unusable, with one line naming both. A plugin's factory that fails is one line naming
+the field and its package (build_field).
 """
 
 from __future__ import annotations
@@ -51,7 +61,7 @@ import importlib.metadata
 import sys
 from collections.abc import Callable, Collection, Iterable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 from liquidgs.errors import ConfigError, one_line
 from liquidgs.fields.presets import FAMILY_SIZES, PRESET_NAMES
@@ -85,18 +95,45 @@ class FieldType:
     or None: its sizes come from its preset alone."""
     package: str
     """The distribution that registered it ('liquidgs' for the built-in fields)."""
+    version: str | None = None
+    """That distribution's version (None where it is not installed metadata, e.g. a test's)."""
+    options: type | None = None
+    """The dataclass of the field's own settings (--field-options.*), or None."""
+    default_lambda: float | None = None
+    """A stochastic field's noise level when none is given; None: the field is deterministic."""
+
+    @property
+    def plugin(self) -> bool:
+        return self.package != BUILTIN_PACKAGE
+
+    @property
+    def origin(self) -> str:
+        """The package as messages name it: 'my-fields 0.2'."""
+        return f"{self.package} {self.version}" if self.version else self.package
 
 
-def installed_plugins() -> list[tuple[str, importlib.metadata.EntryPoint]]:
-    """(package, entry point) of every installed 'liquidgs.fields' entry point, by name."""
+class Plugin(NamedTuple):
+    """One "liquidgs.fields" entry point and the distribution that declares it."""
+
+    package: str
+    version: str | None
+    entry_point: importlib.metadata.EntryPoint | None
+    """None for liquidgs' built-in registrations."""
+
+
+def installed_plugins() -> list[Plugin]:
+    """Every installed 'liquidgs.fields' entry point, by name."""
     found = importlib.metadata.entry_points(group=ENTRY_POINT_GROUP)
-    return [(ep.dist.name if ep.dist else ep.module.split(".")[0], ep) for ep in sorted(found, key=lambda e: e.name)]
+    return [
+        Plugin(ep.dist.name, ep.dist.version, ep) if ep.dist else Plugin(ep.module.split(".")[0], None, ep)
+        for ep in sorted(found, key=lambda e: e.name)
+    ]
 
 
 class FieldRegistry:
     """The registered fields, filled on first read from the built-ins and `list_plugins()`."""
 
-    def __init__(self, list_plugins: Callable[[], Iterable[tuple[str, importlib.metadata.EntryPoint]]]):
+    def __init__(self, list_plugins: Callable[[], Iterable[Plugin]]):
         self._list_plugins = list_plugins
         self._fields: dict[str, FieldType] = {}
         self._conflicts: dict[str, str] = {}
@@ -105,8 +142,8 @@ class FieldRegistry:
         """One line per plugin that failed to load or registered a taken name (printed as warnings)."""
         self._failed_packages: list[str] = []
         self._loaded = False
-        self._package: str | None = None
-        """The package whose registrations are running (None: a direct call)."""
+        self._loading: Plugin | None = None
+        """The plugin whose registrations are running (None: the built-ins or a direct call)."""
 
     def register(
         self,
@@ -116,8 +153,13 @@ class FieldRegistry:
         presets: Collection[str],
         label: str | None = None,
         family: str | None = None,
+        options: type | None = None,
+        default_lambda: float | None = None,
     ) -> None:
-        package = self._package or getattr(factory, "__module__", "?").split(".")[0]
+        if self._loading is not None:
+            package, version = self._loading.package, self._loading.version
+        else:
+            package, version = getattr(factory, "__module__", "?").split(".")[0], None
         if not (isinstance(name, str) and name.isidentifier() and name.islower()):
             raise ConfigError(f"a field name must be a lowercase identifier, got {name!r}")
         if not callable(factory):
@@ -128,45 +170,79 @@ class FieldRegistry:
             raise ConfigError(f"field '{name}' must register presets among {', '.join(PRESET_NAMES)}, got {presets}")
         if family is not None and family not in FAMILY_SIZES:
             raise ConfigError(f"field '{name}': unknown family '{family}' (choose from {', '.join(FAMILY_SIZES)})")
+        if default_lambda is not None and not (
+            isinstance(default_lambda, (int, float)) and 0 <= default_lambda < float("inf")
+        ):
+            raise ConfigError(f"field '{name}': default_lambda must be a finite number >= 0, got {default_lambda!r}")
+        if options is not None:
+            from liquidgs.fields.config import check_options_class  # config reads this registry
+
+            check_options_class(name, options)
+        new = FieldType(name, factory, label or name, presets, family, package, version, options, default_lambda)
         if name in self._conflicts:
             return
-        if name in self._fields:
-            first = self._fields.pop(name).package
-            self._conflicts[name] = (
-                f"field '{name}' is registered by two packages, '{first}' and '{package}': uninstall one"
+        first = self._fields.get(name)
+        if first is None:
+            self._fields[name] = new
+        elif first.package == package and first.factory is factory:
+            return  # one package's two entry points for the same registration
+        elif not first.plugin:
+            self._refuse(
+                f"field plugin package '{package}' cannot register '{name}': "
+                "it is a built-in field (the built-in is kept)"
             )
-            raise NameTaken(self._conflicts[name])
-        self._fields[name] = FieldType(name, factory, label or name, presets, family, package)
+        else:
+            del self._fields[name]
+            if first.package == package:
+                self._conflicts[name] = f"field '{name}' is registered twice by package '{package}': fix the package"
+            else:
+                self._conflicts[name] = (
+                    f"field '{name}' is registered by two packages, '{first.package}' and '{package}': uninstall one"
+                )
+            self._refuse(self._conflicts[name])
+
+    def _refuse(self, line: str) -> None:
+        """A taken name: while plugins load, a warning (the plugin's other fields still register);
+        from a direct call, an error."""
+        if self._loading is None:
+            raise NameTaken(line)
+        self._problem(line)
 
     def _load(self) -> None:
         if self._loaded:
             return
         self._loaded = True  # first: a plugin's own reads of the registry must not load it again
-        self._package = BUILTIN_PACKAGE
+        self._loading = Plugin(BUILTIN_PACKAGE, None, None)
         try:
             # Loaded by name, as a plugin's entry point is: the registry depends on no field.
             importlib.import_module(BUILTIN_REGISTRATIONS).register_builtin_fields()
         finally:
-            self._package = None
+            self._loading = None
         try:
             plugins = list(self._list_plugins())
         except Exception as error:  # broken installed metadata: the built-in fields still work
             plugins = []
             self._problem(f"the '{ENTRY_POINT_GROUP}' entry points could not be read: {type(error).__name__}: {error}")
-        for package, entry_point in plugins:
-            self._package = package
+        loaded = set()
+        for plugin in plugins:
+            entry_point = plugin.entry_point
+            if (plugin.package, entry_point.value) in loaded:
+                continue  # the same function under two entry-point names
+            loaded.add((plugin.package, entry_point.value))
+            self._loading = plugin
             try:
                 entry_point.load()()
-            except NameTaken as error:
-                self._problem(str(error))
-            except Exception as error:
-                self._failed_packages.append(package)
+            except KeyboardInterrupt:
+                raise
+            except BaseException as error:  # a plugin's sys.exit() must not end liquidgs
+                self._failed_packages.append(plugin.package)
+                what = "exited" if isinstance(error, SystemExit) else "failed to load"
                 self._problem(
-                    f"field plugin package '{package}' failed to load ({entry_point.name} = {entry_point.value}): "
+                    f"field plugin package '{plugin.package}' {what} ({entry_point.name} = {entry_point.value}): "
                     f"{type(error).__name__}: {error}"
                 )
             finally:
-                self._package = None
+                self._loading = None
 
     def _problem(self, line: str) -> None:
         self.problems.append(one_line(line))
@@ -198,15 +274,22 @@ def register(
     presets: Collection[str],
     label: str | None = None,
     family: str | None = None,
+    options: type | None = None,
+    default_lambda: float | None = None,
 ) -> None:
     """Make a field available under `name` (see the module docstring for the contract).
 
     presets: the preset names the field has sizes for (a dict of sizes by preset name works: its
     keys are used). label: what tables show (default: the name). family: for fields that read
     the built-in FieldOptions sizes ('mlp', 'liquid'); leave it None to size the field by its
-    preset alone. Raises ConfigError for a bad name, preset or family, or a name already taken.
+    preset alone. options: the dataclass of the field's own settings (--field-options.*), read by
+    the factory as config.options. default_lambda: makes the field stochastic, with this noise
+    level when --lambda is not given. Raises ConfigError for a bad name, preset, family or
+    options, or (outside a plugin's entry point) a name already taken.
     """
-    REGISTRY.register(name, factory, presets=presets, label=label, family=family)
+    REGISTRY.register(
+        name, factory, presets=presets, label=label, family=family, options=options, default_lambda=default_lambda
+    )
 
 
 def field_names() -> tuple[str, ...]:
@@ -221,3 +304,25 @@ def field_type(name: str) -> FieldType:
 
 def field_label(name: str) -> str:
     return field_type(name).label
+
+
+def field_record(name: str) -> dict:
+    """What a run folder records of its field's origin: {'name': package, 'version': ...}."""
+    kind = field_type(name)
+    version = kind.version
+    if not kind.plugin:
+        from liquidgs import __version__
+
+        version = __version__
+    return {"name": kind.package, "version": version}
+
+
+def check_recorded_field(name: str, record, source) -> None:
+    """A stored run's field, with the record of its origin (field_record): when it is not
+    registered, one line naming the package it came from."""
+    if not isinstance(name, str) or name in field_names() or name in REGISTRY._conflicts:
+        return
+    if isinstance(record, dict) and isinstance(record.get("name"), str):
+        version = record.get("version")
+        origin = f"{record['name']} {version}" if version else record["name"]
+        raise ConfigError(f"{source}: field '{name}' comes from package {origin}, which is not installed")

@@ -6,6 +6,7 @@ import dataclasses
 import hashlib
 import json
 import math
+import typing
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Literal
@@ -20,7 +21,15 @@ from liquidgs.data.perturb import PerturbConfig
 from liquidgs.data.scene import DataConfig
 from liquidgs.errors import ConfigError
 from liquidgs.fields import FieldConfig, FieldOptions
-from liquidgs.fields.config import FIELD_ONLY_OPTIONS, PRESET_NAMES, PresetName, check_choice
+from liquidgs.fields.config import (
+    FIELD_ONLY_OPTIONS,
+    PRESET_NAMES,
+    PresetName,
+    check_choice,
+    field_options_class,
+    own_option_flags,
+)
+from liquidgs.fields.registry import check_recorded_field, field_record
 from liquidgs.render import BACKENDS
 from liquidgs.settings import to_dict, with_settings
 from liquidgs.train.strategy import DensifyConfig
@@ -100,7 +109,7 @@ class TrainConfig:
     field_options: FieldOptions = dataclasses.field(default_factory=FieldOptions)
     """Sizes and noise variants of the built-in fields (name, preset and lambda come from the flags
     above); a field outside the built-in families is sized by its preset alone (hexplane reads one
-    option, grid_lr_scale)."""
+    option, grid_lr_scale) and by the options it registered (a plugin's --field-options.*)."""
     perturb: PerturbConfig = dataclasses.field(default_factory=PerturbConfig)
     """Stress tests: corrupt or thin out the training split (test views stay clean)."""
     optim: OptimConfig = dataclasses.field(default_factory=OptimConfig)
@@ -108,7 +117,30 @@ class TrainConfig:
     eval: EvalConfig = dataclasses.field(default_factory=EvalConfig)
 
     def __post_init__(self) -> None:
+        own = field_options_class(self.field)
+        if type(self.field_options) is not own:  # e.g. built in code with FieldOptions(): the field's own defaults
+            shared = {f.name: getattr(self.field_options, f.name) for f in dataclasses.fields(FieldOptions)}
+            self.field_options = own(**shared)
         validate(self)
+
+    @classmethod
+    def settings_group(cls, key: str, raw: dict) -> type:
+        """settings' hook: field_options holds the options of the field the config names."""
+        if key == "field_options":
+            name = raw.get("field", cls.field)
+            return field_options_class(name) if isinstance(name, str) else FieldOptions
+        return settings.nested_class(cls, key)
+
+    @classmethod
+    def settings_extra_flags(cls) -> list[settings.Flag]:
+        """settings' hook: --field-options.* of every registered field's own options."""
+        flags = []
+        for key, owners in own_option_flags().items():
+            hints = tuple(dict.fromkeys(hint for _, hint in owners))
+            hint = hints[0] if len(hints) == 1 else typing.Union[hints]  # noqa: UP007 - a runtime union
+            flag = f"field-options.{key.replace('_', '-')}"
+            flags.append(settings.Flag(f"field_options.{key}", flag, hint, positional=False, required=False))
+        return flags
 
     def field_config(self) -> FieldConfig:
         """The field's own configuration (validated by the field's rules)."""
@@ -364,8 +396,13 @@ def differing_settings(a: TrainConfig, b: TrainConfig) -> list[str]:
     return sorted(k for k in fa.keys() | fb.keys() if fa.get(k) != fb.get(k))
 
 
+FIELD_PACKAGE = "field_package"
+"""config.yml's record of the package (and version) the field came from: not a setting."""
+
+
 def save_yaml(cfg: TrainConfig, path: Path) -> None:
-    write_text_atomic(path, yaml.safe_dump(to_dict(cfg), sort_keys=False))
+    record = {**to_dict(cfg), FIELD_PACKAGE: field_record(cfg.field)}
+    write_text_atomic(path, yaml.safe_dump(record, sort_keys=False))
 
 
 def load_yaml(path: Path) -> TrainConfig:
@@ -375,6 +412,7 @@ def load_yaml(path: Path) -> TrainConfig:
         raise ConfigError(f"{path}: unreadable run config ({type(err).__name__})") from None
     if not isinstance(raw, dict) or "data" not in raw:
         raise ConfigError(f"{path}: not a liquidgs run config (no 'data')")
+    check_recorded_field(raw.get("field"), raw.pop(FIELD_PACKAGE, None), path)
     return from_dict(raw, path)
 
 
