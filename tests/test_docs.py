@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import importlib.util
 import re
+import sys
 import unicodedata
 from pathlib import Path
 
@@ -13,6 +14,7 @@ import pytest
 
 from liquidgs.commands.catalog import all_option_strings, check_command_line, commands
 from liquidgs.errors import ConfigError
+from liquidgs.fields.testing import plugin_registry
 
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = ROOT / "docs"
@@ -169,8 +171,22 @@ def problems(path: Path) -> list[str]:
     return found
 
 
+@pytest.fixture(scope="module")
+def template_plugin():
+    """The docs' plugin examples train the template plugin's `wave` field (examples/field-plugin):
+    registered from the checkout, as its own tests do, so its command lines parse."""
+    sys.path.insert(0, str(ROOT / "examples" / "field-plugin" / "src"))
+    try:
+        from wave_field import register
+
+        with plugin_registry(register, package="liquidgs-wave-field"):
+            yield
+    finally:
+        sys.path.remove(str(ROOT / "examples" / "field-plugin" / "src"))
+
+
 @pytest.mark.parametrize("path", list(PAGES), ids=lambda p: str(p.relative_to(ROOT)))
-def test_links_resolve_and_commands_parse(path):
+def test_links_resolve_and_commands_parse(path, template_plugin):
     found = problems(path)
     assert not found, "\n".join(found)
 
