@@ -73,7 +73,10 @@ def test_a_machine_without_cuda_is_told_so_and_nothing_is_written(scene, tmp_pat
     assert not output.exists()
 
 
-@pytest.mark.parametrize("args", [[], ["--dry-run", "out", "missing-scene"], ["--dry-run", "out", "tests"], ["a", "b", "c"]])
+BAD_SCRIPT_ARGS = [[], ["--dry-run", "out", "missing-scene"], ["--dry-run", "out", "tests"], ["a", "b", "c"]]
+
+
+@pytest.mark.parametrize("args", BAD_SCRIPT_ARGS)
 def test_script_refuses_bad_arguments(args):
     env = {**os.environ, "PYTHON": sys.executable}
     done = subprocess.run(["bash", "scripts/gpu_acceptance.sh", *args], cwd=ROOT, env=env, capture_output=True,
