@@ -1,14 +1,19 @@
-"""The project's read-only shared folder (../shared from the repository root), for tests that use it.
+"""The project's read-only shared folder (../shared from the repository root), and the optional
+test packages (the dev extras), for tests that use them.
 
 A clone with nothing beside it has no ../shared: a test that needs a file from it skips with one
 line naming that file. CI has the folder and sets LIQUIDGS_REQUIRE_SHARED=1 (.ci/run), which
 turns such a skip into a failure, so a moved or renamed shared file cannot silently skip tests.
+The same holds for the dev extras (ncps, pycolmap, playwright): a machine without them (the GPU
+machine) skips the tests that need one, and CI, which installs them all, fails instead.
 """
 
 from __future__ import annotations
 
+import importlib
 import os
 from pathlib import Path
+from types import ModuleType
 
 import pytest
 
@@ -33,6 +38,18 @@ def require_shared(path: Path) -> Path:
     if shared_required():
         pytest.fail(f"{shown} is missing, and {REQUIRE_ENV} is set: this run must have ../shared", pytrace=False)
     pytest.skip(f"needs {shown} (not in this checkout)")
+
+
+def require_module(name: str) -> ModuleType:
+    """The optional package `name` (a dev extra); otherwise skip the calling test, or fail it under CI.
+    Called inside tests or fixtures, never at a module's top level, so every test module imports
+    (and `pytest -m cuda` collects) on a machine without the dev extras."""
+    try:
+        return importlib.import_module(name)
+    except ImportError as err:
+        if shared_required():
+            pytest.fail(f"{name} is not importable ({err}), and {REQUIRE_ENV} is set: install .[dev]", pytrace=False)
+        pytest.skip(f"needs {name} (pip install -e .[dev])")
 
 
 def lpips_weights_dir() -> Path:

@@ -21,7 +21,6 @@ import sys
 from pathlib import Path
 
 import numpy as np
-import pycolmap
 import pytest
 from PIL import Image
 
@@ -31,6 +30,7 @@ from liquidgs.data.colmap import SolveOptions
 from liquidgs.data.synthetic import render_rgba
 from liquidgs.data.video import extract_video_frames
 from liquidgs.media import write_video
+from shared_data import require_module
 from tiny_runs import run_cli
 from video_scene import FOCAL, Lens, render_handheld_video, scene_at
 
@@ -50,7 +50,13 @@ def handheld(tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
-def video_scene(handheld, tmp_path_factory):
+def pycolmap():
+    """COLMAP's wheels, which solve the cameras (the colmap / dev extra)."""
+    return require_module("pycolmap")
+
+
+@pytest.fixture(scope="module")
+def video_scene(pycolmap, handheld, tmp_path_factory):
     out = tmp_path_factory.mktemp("scenes") / "handheld"
     code, stdout, stderr = run_cli(
         ["data", "video", str(handheld.path), "--out", str(out), "--frames", str(FRAMES), "--max-size", "200",
@@ -61,7 +67,7 @@ def video_scene(handheld, tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
-def image_scene(handheld, tmp_path_factory):
+def image_scene(pycolmap, handheld, tmp_path_factory):
     """The first frames as an image folder with a blank frame among them, and masks of the figure."""
     root = tmp_path_factory.mktemp("images")
     images, masks = root / "images", root / "masks"
@@ -88,7 +94,7 @@ def image_scene(handheld, tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
-def distorted_scenes(tmp_path_factory):
+def distorted_scenes(pycolmap, tmp_path_factory):
     """The handheld video through PHONE_LENS, made into a scene by default and with --keep-distortion."""
     root = tmp_path_factory.mktemp("distorted")
     video = render_handheld_video(root / "phone.mp4", DISTORTED_FRAMES, PHONE_LENS)
@@ -204,7 +210,7 @@ def test_an_image_folder_drops_the_frame_colmap_cannot_register_and_keeps_the_ot
 
 def keypoints_on_figure(scene: Path, handheld, frame_of_id) -> int:
     """Keypoints (COLMAP's model keeps every one) on the pixels the moving figure covers."""
-    model = pycolmap.Reconstruction(scene / "colmap" / "sparse")
+    model = require_module("pycolmap").Reconstruction(scene / "colmap" / "sparse")
     count = 0
     for image in model.images.values():
         mask = handheld.dynamic_masks[frame_of_id(Path(image.name).stem)]
@@ -245,7 +251,7 @@ def test_extraction_samples_frames_and_applies_a_phone_rotation(handheld, tmp_pa
     assert "extraction: portrait.mp4: 32 frames, 12 fps, 152x200 after scaling; keeping 5" in lines
 
 
-def test_bad_inputs_are_one_line_and_leave_nothing(tmp_path):
+def test_bad_inputs_are_one_line_and_leave_nothing(pycolmap, tmp_path):
     blank = tmp_path / "wall.mp4"
     write_video(blank, [np.full((120, 160, 3), 170, np.uint8)] * 16, fps=12)
     (tmp_path / "empty.mp4").write_bytes(b"")
@@ -300,7 +306,7 @@ def test_a_short_training_on_the_scene_beats_the_static_model(video_scene, tmp_p
     assert psnr["mlp"] >= psnr["static"] + 0.2, psnr
 
 
-def test_bad_image_folders_and_masks_are_one_line_naming_the_file(handheld, tmp_path):
+def test_bad_image_folders_and_masks_are_one_line_naming_the_file(pycolmap, handheld, tmp_path):
     images = tmp_path / "images"
     images.mkdir()
     for n in range(4):  # the fewest frames COLMAP is run on
@@ -321,7 +327,7 @@ def test_bad_image_folders_and_masks_are_one_line_naming_the_file(handheld, tmp_
     assert sorted(p.name for p in tmp_path.iterdir()) == ["images", "masks"]
 
 
-def test_an_interrupt_mid_run_leaves_no_scene_and_no_partial_folder(handheld, tmp_path):
+def test_an_interrupt_mid_run_leaves_no_scene_and_no_partial_folder(pycolmap, handheld, tmp_path):
     images = tmp_path / "images"
     images.mkdir()
     for n in range(4):

@@ -2,10 +2,10 @@
 
 import pytest
 import torch
-from ncps.torch import CfCCell as NcpsCfCCell
 
 from field_reference import assert_matches_with_gradients
 from liquidgs.fields import ACTIVATIONS, CfCCell, FieldConfig, build_field
+from shared_data import require_module
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
@@ -21,7 +21,8 @@ def tau_column(kind: str, batch: int, generator: torch.Generator) -> torch.Tenso
 
 def ncps_pair(inputs, hidden, units, layers, activation="gelu"):
     """An ncps cell (eval, fp64) and ours with its weights copied in."""
-    reference = NcpsCfCCell(inputs, hidden, "default", activation, units, layers, 0.0).double().eval()
+    ncps_cell = require_module("ncps.torch").CfCCell
+    reference = ncps_cell(inputs, hidden, "default", activation, units, layers, 0.0).double().eval()
     ours = CfCCell(inputs, hidden, units, layers, activation).double().eval()
     ours.load_state_dict(reference.state_dict())  # same layout: backbone.0 sees cat([u, h])
     return reference, ours
@@ -54,7 +55,8 @@ def test_cell_matches_ncps_for_every_activation(activation, layers):
 def test_stack_of_six_matches_ncps(preset, inputs, units, batch):
     torch.manual_seed(3)
     field = build_field(FieldConfig(name="cfc", preset=preset)).double().eval()
-    references = [NcpsCfCCell(inputs, 128, "default", "gelu", units, 2, 0.0) for _ in range(6)]
+    ncps_cell = require_module("ncps.torch").CfCCell
+    references = [ncps_cell(inputs, 128, "default", "gelu", units, 2, 0.0) for _ in range(6)]
     for reference, cell in zip(references, field.cells):
         reference.double().eval()
         cell.load_state_dict(reference.state_dict())

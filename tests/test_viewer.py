@@ -30,6 +30,7 @@ from liquidgs.commands.train import resolve_config, train
 from liquidgs.data import generate_synthetic
 from liquidgs.media import to_uint8
 from liquidgs.render.camera_path import PathCamera, read_camera_path, write_camera_path
+from shared_data import require_module
 
 REPO = Path(__file__).resolve().parents[1]
 ARTIFACTS = Path(os.environ.get("LIQUIDGS_TEST_ARTIFACTS", REPO / "test-artifacts")) / "viewer"
@@ -249,7 +250,7 @@ def test_command_binds_to_localhost_and_ctrl_c_stops_it(run_dir):
 
 @pytest.fixture(scope="module")
 def browser():
-    sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is not installed (pip install -e .[dev])")
+    sync_api = require_module("playwright.sync_api")
     if not Path(CHROMIUM).is_file():
         pytest.skip(f"no Chromium at {CHROMIUM}: scripts/setup_browser.sh installs Debian's chromium (needs root)")
     with sync_api.sync_playwright() as playwright:

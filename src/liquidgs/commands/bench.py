@@ -1,4 +1,5 @@
-"""`liquidgs bench {raster,fields,train,gpu}`: benchmarks that print one JSON object per case."""
+"""`liquidgs bench {raster,fields,train,gpu,acceptance}`: benchmarks that print one JSON object per case,
+and the GPU acceptance (scripts/gpu_acceptance.sh) in stages."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ BENCHMARKS = {
     "fields": "liquidgs.fields.benchmark",
     "train": "liquidgs.train.benchmark",
     "gpu": "liquidgs.train.acceptance",
+    "acceptance": "liquidgs.train.gpu_acceptance",
 }
 
 

@@ -23,6 +23,7 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, Ti
 
 from liquidgs.errors import ConfigError
 from liquidgs.experiments import BUILTIN_SPECS, expand, generate_scenes, load_spec, read_manifest, write_manifest
+from liquidgs.experiments.estimate import estimate
 from liquidgs.experiments.plan import MANIFEST
 from liquidgs.experiments.runner import RunOutcome, finished_elsewhere, run_experiment
 from liquidgs.settings import parse_flags
@@ -79,6 +80,8 @@ def run(args: RunArgs, console: Console) -> int:
         also = f", {shared} finished in another experiment, to be shared" if shared else ""
         where = f"in {experiment.directory}; nothing was run (--dry-run)"
         print(f"{len(experiment.runs)} runs ({len(done)} done{also}) {where}")
+        to_train = [e for e in experiment.runs if e not in done and finished_elsewhere(e, experiment.directory) is None]
+        print(estimate(to_train).line(len(to_train)))
         return 0
     write_manifest(experiment)
     for folder in generate_scenes(experiment):

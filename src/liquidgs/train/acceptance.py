@@ -1,18 +1,19 @@
 """`liquidgs bench gpu`: train one scene at full resolution on a GPU for a fixed time, then score it.
 
-The training half of the GPU acceptance (scripts/gpu_acceptance.sh does the installs, the gsplat
-build and `pytest -m cuda` first, then calls this with the seconds that are left). It trains the
-preset's schedule (dnerf: 40,000 iterations planned) with the gsplat backend until --budget-s
-seconds of training have passed, evaluates the test views at that iteration (labelled: a run
-cut short, not the preset's final number), times rendering with the field, and appends one JSON
-line with the GPU's name to --output (benchmarks/gpu.jsonl). --dry-run checks the arguments and
-the scene and prints the plan, on any machine.
+The scene stage of the GPU acceptance (train/gpu_acceptance.py runs it last, with the seconds
+left and the backend its plan B chose). It trains the preset's schedule (dnerf: 40,000 iterations
+planned) with --backend (gsplat, or torch on CUDA) until --budget-s seconds of training have
+passed, appends a record of the training (it/s, peak memory) to --output at once, then evaluates
+the test views at that iteration (labelled: a run cut short, not the preset's final number),
+times rendering with the field, and appends the full record with the GPU's name. --dry-run checks
+the arguments and the scene and prints the plan, on any machine.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import tempfile
 import time
@@ -41,6 +42,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--field", default="mlp", help="a registered field (checked by TrainConfig)")
     parser.add_argument("--downscale", type=int, default=1, help="image downscale (default 1: full resolution)")
     parser.add_argument("--fps-frames", type=int, default=50, help="frames timed for the render FPS (default 50)")
+    parser.add_argument("--backend", default="gsplat", choices=("gsplat", "torch"),
+                        help="rasteriser: gsplat's CUDA kernels, or (plan B) our torch backend on CUDA")
+    parser.add_argument("--backend-label", default="", help="why this backend (the acceptance's plan B says)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, help="run folder (default: a temporary folder)")
     parser.add_argument("--output", type=Path, default=DEFAULT_OUTPUT, help=f"JSON lines (default {DEFAULT_OUTPUT})")
@@ -56,7 +60,7 @@ def run_config(args: argparse.Namespace):
         raise ConfigError(f"--fps-frames must be >= 1, got {args.fps_frames}")
     cfg = preset_config(args.preset, DataConfig(path=args.data, downscale=args.downscale))
     return with_settings(cfg, {
-        "field": args.field, "seed": args.seed, "device": "cuda", "backend": "gsplat",
+        "field": args.field, "seed": args.seed, "device": "cuda", "backend": args.backend,
         "eval.start": cfg.iterations + 1,  # evaluated once, when the budget is spent
         "eval.fps_frames": args.fps_frames,
     }, "bench gpu")  # fmt: skip
@@ -65,7 +69,7 @@ def run_config(args: argparse.Namespace):
 def plan_lines(args: argparse.Namespace, cfg, resolution: tuple[int, int], test_views: int) -> list[str]:
     return [
         f"scene {args.data} ({resolution[0]}x{resolution[1]}, {test_views} test views), field {cfg.field}, "
-        f"preset {cfg.preset} ({cfg.iterations} iterations planned), seed {cfg.seed}, backend gsplat on cuda",
+        f"preset {cfg.preset} ({cfg.iterations} iterations planned), seed {cfg.seed}, backend {cfg.backend} on cuda",
         f"train for {args.budget_s:g} s, then evaluate the test views at the iteration reached "
         f"and time {args.fps_frames} renders with the field",
         f"append one JSON line to {args.output}",
@@ -77,7 +81,8 @@ def summary_lines(record: dict) -> list[str]:
     width, height = record["resolution"]
     lpips = record["lpips"]
     return [
-        f"GPU: {record['device_name']} (torch {record['torch_version']}, gsplat {record['gsplat_version']})",
+        f"GPU: {record['device_name']} (torch {record['torch_version']}, gsplat {record['gsplat_version']}), "
+        f"rasteriser: {record.get('backend_label') or record.get('backend', 'gsplat')}",
         f"{record['scene']} {width}x{height}, {record['field']}: {record['iterations']} iterations in "
         f"{record['train_seconds']:.0f} s = {record['iterations_per_second']:.1f} it/s "
         f"({record['n_gaussians']:,} Gaussians at the end)",
@@ -95,6 +100,15 @@ def _gsplat_version() -> str:
         return "not installed"
 
 
+def append_line(path: Path, record: dict) -> None:
+    """One JSON line, flushed and synced: a kill a moment later keeps it."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("a") as file:
+        file.write(json.dumps(record) + "\n")
+        file.flush()
+        os.fsync(file.fileno())
+
+
 def measure(args: argparse.Namespace, cfg, run_dir: Path) -> dict:
     trainer = Trainer(cfg, run_dir)
     started = time.perf_counter()
@@ -105,10 +119,22 @@ def measure(args: argparse.Namespace, cfg, run_dir: Path) -> dict:
         trainer.state.iteration = step
     torch.cuda.synchronize()
     seconds = time.perf_counter() - started
+    peak_mb = round(torch.cuda.max_memory_allocated() / 2**20, 1)
+    append_line(args.output, {
+        "stage": "scene", "event": "trained", "backend": cfg.backend, "backend_label": args.backend_label,
+        "iterations": step, "train_seconds": round(seconds, 2), "iterations_per_second": round(step / seconds, 2),
+        "peak_memory_mb": peak_mb, "n_gaussians": int(trainer.params["means"].shape[0]),
+        "line": f"trained {step} iterations in {seconds:.0f} s = {step / seconds:.1f} it/s with {cfg.backend}, "
+                f"peak GPU memory {peak_mb:,.0f} MB (evaluation next)",
+    })  # fmt: skip
     summary, _ = trainer.evaluate()
     frame = trainer.dataset.test[0] if trainer.dataset.test else trainer.dataset.train[0]
-    return {
+    record = {
         "benchmark": "gpu-acceptance",
+        "stage": "scene",
+        "event": "result",
+        "backend": cfg.backend,
+        "backend_label": args.backend_label,
         "device_name": machine_description(trainer.device),
         "torch_version": torch.__version__,
         "gsplat_version": _gsplat_version(),
@@ -129,6 +155,8 @@ def measure(args: argparse.Namespace, cfg, run_dir: Path) -> dict:
         "evaluation": f"test views at iteration {step} of the {cfg.iterations} planned (cut short by the budget)",
         "peak_memory_mb": round(torch.cuda.max_memory_allocated() / 2**20, 1),
     }
+    record["line"] = " / ".join(summary_lines(record))
+    return record
 
 
 def run(args: argparse.Namespace) -> int:
@@ -143,9 +171,7 @@ def run(args: argparse.Namespace) -> int:
     with tempfile.TemporaryDirectory(prefix="liquidgs-gpu-") as scratch:
         run_dir = args.out or Path(scratch) / "run"
         record = measure(args, cfg, run_dir)
-    args.output.parent.mkdir(parents=True, exist_ok=True)
-    with args.output.open("a") as file:
-        file.write(json.dumps(record) + "\n")
+    append_line(args.output, record)
     print("\n".join(summary_lines(record)))
     return 0
 
