@@ -25,6 +25,10 @@ scene=${2:-.scene/hellwarrior}
 py=${PYTHON:-python3}
 export PYTHONUNBUFFERED=1 PYTHONPATH="$PWD/src:/tmp/site${PYTHONPATH:+:$PYTHONPATH}"
 [ -d .scene/lpips ] && export LIQUIDGS_LPIPS_WEIGHTS="$PWD/.scene/lpips"
+if ! "$py" -c "import torch" 2>/dev/null; then
+    echo "gpu_acceptance: $py cannot import torch (set PYTHON to an interpreter that has it)" >&2
+    exit 2
+fi
 if [ "$dry_run" = 1 ]; then
     exec "$py" -m liquidgs.cli bench acceptance --out "$out" --scene "$scene" --dry-run
 fi
