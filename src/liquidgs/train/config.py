@@ -23,6 +23,7 @@ from liquidgs.fields import FieldConfig, FieldOptions
 from liquidgs.fields.config import FIELD_ONLY_OPTIONS, PRESET_NAMES, PresetName, check_choice
 from liquidgs.render import BACKENDS
 from liquidgs.settings import to_dict, with_settings
+from liquidgs.train.camera_opt import CameraRefineConfig, known_format, refines
 from liquidgs.train.strategy import DensifyConfig
 
 
@@ -106,6 +107,8 @@ class TrainConfig:
     optim: OptimConfig = dataclasses.field(default_factory=OptimConfig)
     densify: DensifyConfig = dataclasses.field(default_factory=DensifyConfig)
     eval: EvalConfig = dataclasses.field(default_factory=EvalConfig)
+    cameras: CameraRefineConfig = dataclasses.field(default_factory=CameraRefineConfig)
+    """Camera refinement (on for captures, off for D-NeRF) and the aligned evaluation of test cameras."""
 
     def __post_init__(self) -> None:
         validate(self)
@@ -294,6 +297,12 @@ def identity(cfg: TrainConfig) -> dict:
     for key, owner in FIELD_ONLY_OPTIONS.items():
         if cfg.field != owner:
             del d["field_options"][key]
+    # Camera refinement, added after version 2: a run that does not refine (every run made before
+    # it) has no `cameras` in its identity; one that does holds them with `refine` resolved.
+    if refines(cfg.cameras, known_format(cfg.data)):
+        d["cameras"]["refine"] = "on"
+    else:
+        del d["cameras"]
     d["data"]["path"] = str(Path(d["data"]["path"]).resolve())
     d["identity"] = IDENTITY_VERSION
     return d
@@ -382,4 +391,6 @@ def from_dict(raw: dict, source: Path | str = "config") -> TrainConfig:
     """A TrainConfig from YAML (either version); a setting of the wrong type is one error naming it."""
     if not isinstance(raw.get("data"), dict):
         raw = upgrade_v1(raw)
+    if "cameras" not in raw:  # stored before camera refinement existed: trained without it
+        raw = {**raw, "cameras": {"refine": "off"}}
     return settings.from_dict(TrainConfig, raw, source)
