@@ -270,7 +270,14 @@ class CameraRefinement:
 
 # ---------------------------------------------------------------------- aligned evaluation
 def align_camera(
-    render, gaussians: Deformed, camera: Camera, truth: torch.Tensor, *, steps: int, lr: float, extent: float,
+    render,
+    gaussians: Deformed,
+    camera: Camera,
+    truth: torch.Tensor,
+    *,
+    steps: int,
+    lr: float,
+    extent: float,
     ssim_weight: float = 0.2,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """The correction (omega, tau) that aligns `camera` to frozen Gaussians: `steps` Adam steps on it
@@ -294,6 +301,21 @@ def align_camera(
             loss.backward()
             optimizer.step()
     return omega.detach(), tau.detach()
+
+
+def aligned_render(deformed_at, render, cfg: CameraRefineConfig, extent: float, ssim_weight: float):
+    """A render function for evaluate_views that scores a view from its camera aligned to the frozen
+    scene: deformed_at(time) gives the Gaussians, render(gaussians, camera) the image."""
+
+    def render_aligned(frame):
+        gaussians = deformed_at(frame.time)
+        truth = frame.image().to(gaussians.means.device)
+        omega, tau = align_camera(render, gaussians, frame.camera, truth, steps=cfg.align_steps, lr=cfg.align_lr,
+                                  extent=extent, ssim_weight=ssim_weight)  # fmt: skip
+        viewmat = frame.camera.viewmat.to(gaussians.means.device)
+        return render(move_gaussians(gaussians, viewmat, omega, tau), frame.camera)
+
+    return render_aligned
 
 
 def alignment_protocol(cfg: CameraRefineConfig) -> str:

@@ -24,7 +24,7 @@ from liquidgs.eval import LPIPS, LPIPSUnavailable, evaluate_views, ssim
 from liquidgs.eval.metrics import MIN_MSE, psnr_from_mse
 from liquidgs.fields import build_field
 from liquidgs.gaussians import PARAM_KEYS, init_from_points, init_random_box
-from liquidgs.train.camera_opt import CameraRefinement, align_camera, alignment_protocol, move_gaussians, refines
+from liquidgs.train.camera_opt import CameraRefinement, aligned_render, alignment_protocol, refines
 from liquidgs.train.config import TrainConfig, save_yaml
 from liquidgs.train.model import deform, render_frame
 from liquidgs.train.phases import NoClock, PhaseClock
@@ -417,26 +417,19 @@ class Trainer:
     def evaluate_aligned(self) -> dict:
         """The test split scored with each test camera aligned to the frozen scene (pose-only, per view):
         the second, labelled score of a run that refines its cameras."""
-        c = self.cfg.cameras
-
-        def render_aligned(frame):
-            gaussians = deform(self.params, self.field if self.cfg.field != "static" else None, frame.time)
-            omega, tau = align_camera(
-                lambda moved, camera: self._render(moved, frame).rgb, gaussians, frame.camera,
-                frame.image().to(self.device), steps=c.align_steps, lr=c.align_lr,
-                extent=self.strategy.scene_extent, ssim_weight=self.cfg.ssim_weight,
-            )  # fmt: skip
-            return self._render(move_gaussians(gaussians, frame.camera.viewmat.to(self.device), omega, tau), frame).rgb
-
+        render = aligned_render(
+            lambda time: deform(self.params, self.field if self.cfg.field != "static" else None, time),
+            lambda gaussians, camera: render_frame(gaussians, camera, sh_degree=self.state.sh_degree,
+                                                   background=self.background, backend=self.cfg.backend).rgb,
+            self.cfg.cameras, self.dataset.camera_extent, self.cfg.ssim_weight,
+        )  # fmt: skip
         self.field.eval()
         try:
-            summary, _ = evaluate_views(
-                render_aligned, self.dataset.test, lpips=self.lpips, lpips_error=self.lpips_error,
-                quantize=self.cfg.eval.quantize_8bit,
-            )  # fmt: skip
+            summary, _ = evaluate_views(render, self.dataset.test, lpips=self.lpips, lpips_error=self.lpips_error,
+                                        quantize=self.cfg.eval.quantize_8bit)  # fmt: skip
         finally:
             self.field.train()
-        return {"iteration": self.cfg.iterations, **summary, "cameras": alignment_protocol(c)}
+        return {"iteration": self.cfg.iterations, **summary, "cameras": alignment_protocol(self.cfg.cameras)}
 
     def evaluate_and_record(self, step: int) -> None:
         summary, per_view = self.evaluate()
