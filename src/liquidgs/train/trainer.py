@@ -27,6 +27,7 @@ from liquidgs.gaussians import PARAM_KEYS, init_from_points, init_random_box
 from liquidgs.train.camera_opt import CameraRefinement, aligned_render, alignment_protocol, refines
 from liquidgs.train.config import TrainConfig, save_yaml
 from liquidgs.train.model import deform, render_frame
+from liquidgs.train.motion_reg import MotionRegulariser, regularises
 from liquidgs.train.phases import NoClock, PhaseClock
 from liquidgs.train.run import load_run_dataset, resolve_device
 from liquidgs.train.run_folder import (
@@ -126,6 +127,9 @@ class Trainer:
                              self.device, cfg.optim.adam_eps)
             if refines(cfg.cameras, self.dataset.format) else None
         )  # fmt: skip
+        self.motion = (  # neighbour rigidity / isometry on the deformation, or None
+            MotionRegulariser(cfg.motion) if regularises(cfg.motion, self.dataset.format, cfg.field) else None
+        )
         self.state = TrainState()
         self.checkpoint_iteration: int | None = None
         """Iteration of the checkpoint on disk, once this trainer has written or read one."""
@@ -247,6 +251,7 @@ class Trainer:
         gaussians = deform(self.params, self.field if use_field else None, frame.time, self.time_noise(step))
         if not all(torch.isfinite(t).all() for t in (gaussians.means, gaussians.quats, gaussians.scales)):
             raise self._diverged(f"non-finite Gaussians at iteration {step}")
+        deformed = gaussians
         if self.cameras is not None:
             gaussians = self.cameras.correct(gaussians, index, frame.camera, step)
         clock.mark("field_forward")
@@ -257,6 +262,9 @@ class Trainer:
         regulariser = self.field.regulariser_loss() if use_field else None  # the field's own term
         if regulariser is not None:
             loss = loss + regulariser
+        if self.motion is not None and use_field:
+            p = self.params
+            loss = loss + self.motion.loss(step, p["means"], p["quats"], deformed.means, deformed.quats)
         if not torch.isfinite(loss):
             raise self._diverged(f"non-finite loss at iteration {step}")
         clock.mark("loss_forward")
@@ -522,6 +530,7 @@ class Trainer:
             "torch_rng": torch.get_rng_state(),
             "camera_rng": self.camera_rng.bit_generator.state,
             "cameras": self.cameras.state_dict() if self.cameras is not None else None,
+            "motion": self.motion.state_dict() if self.motion is not None else None,
         }
         path = write_checkpoint(self.run_dir, contents)
         if self.cameras is not None:
@@ -536,6 +545,8 @@ class Trainer:
             self._restore(payload)
             if self.cameras is not None:  # a checkpoint made before refinement existed holds no "cameras"
                 self.cameras.load_state_dict(payload.get("cameras"), path)
+            if self.motion is not None:
+                self.motion.load_state_dict(payload.get("motion"))
         except FieldGroupsChanged as err:
             raise LiquidGSError(f"{path}: {err}") from None
         except (KeyError, TypeError, ValueError, RuntimeError) as err:  # weights of another config
