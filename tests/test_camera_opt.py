@@ -201,7 +201,7 @@ def test_a_run_made_before_refinement_resumes_without_it(capture, tmp_path, monk
     assert load_yaml(out / "config.yml").cameras.refine == "off"
     code, _, _ = run_cli(["train", "--out", str(out), "--resume"])
     assert code == 0 and not (out / "cameras_refined.json").exists()
-    assert json.loads((out / "results.json").read_text())["final_aligned"] == {}
+    assert "final_aligned" not in json.loads((out / "results.json").read_text())
     # Turning refinement on for it is a changed setting, refused in one line.
     code, _, err = run_cli(["train", "--out", str(out), "--resume", "--iterations", "40", "--cameras.refine", "on"])
     assert code == 2 and "cameras.refine" in err

@@ -64,10 +64,12 @@ class RunResults:
     final_aligned: dict = dataclasses.field(default_factory=dict)
     """Runs that refine their cameras: the final evaluation again with each test camera aligned to the
     frozen scene (its "cameras" says how); `final` is with the test cameras as given. Empty for a run
-    that does not refine (and absent from results.json written before refinement existed)."""
+    that does not refine, and then left out of results.json, as before refinement existed."""
 
     def to_json(self) -> dict:
-        return {_json_key(name): value for name, value in dataclasses.asdict(self).items()}
+        # final_aligned only where there is one: a run without refinement writes what it did before.
+        return {_json_key(name): value for name, value in dataclasses.asdict(self).items()
+                if name != "final_aligned" or value}  # fmt: skip
 
     @classmethod
     def from_json(cls, raw, path: Path) -> RunResults:
