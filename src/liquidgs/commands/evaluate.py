@@ -3,6 +3,10 @@
 Writes DIR/eval.json (summary, labelled with the checkpoint's iteration and whether the run
 had finished) and DIR/eval_per_view.json; results.json, the training record, is left as it
 was. A run in progress may be evaluated: its record says "unfinished run".
+
+The scores are with the test cameras as given. A run that refined its cameras is scored a second
+time with each test camera aligned to the frozen scene, under "aligned" (its "cameras" says how).
+--mask DIR adds PSNR / SSIM inside and outside per-view masks of the moving subject, under "masked".
 """
 
 from __future__ import annotations
@@ -17,7 +21,11 @@ from rich.console import Console
 from liquidgs.atomic import write_json_atomic
 from liquidgs.errors import ConfigError
 from liquidgs.eval import LPIPS, LPIPSUnavailable, describe_lpips, evaluate_views
+from liquidgs.eval.masks import masked_scores, read_masks
+from liquidgs.eval.metrics import quantize_8bit
 from liquidgs.settings import parse_flags
+from liquidgs.train.camera_opt import aligned_render, alignment_protocol, refines
+from liquidgs.train.model import render_frame
 from liquidgs.train.run import load_run, load_run_dataset
 from liquidgs.train.run_folder import EVAL, EVAL_PER_VIEW, write_per_view
 
@@ -33,6 +41,9 @@ class EvalArgs:
     lpips_weights: Path | None = None
     quantize_8bit: bool | None = None
     device: str = "auto"
+    mask: Path | None = None
+    """Folder of masks of the moving subject, <view name>.png at the view's size, nonzero inside (the
+    masks `data video --mask-dynamic` takes): scores inside and outside them, with the cameras as given."""
 
 
 def evaluate_run(args: EvalArgs) -> dict:
@@ -57,13 +68,28 @@ def evaluate_run(args: EvalArgs) -> dict:
     except LPIPSUnavailable as err:
         lpips, lpips_error = None, str(err)
     background = torch.tensor(dataset.background, dtype=torch.float32)
+    views = dataset.splits[args.split]
+    masks = read_masks(args.mask, views) if args.mask is not None else None  # checked before any work
+    renders = []
 
     def render(frame):
-        return run.render(frame.camera, frame.time, background).rgb
+        rgb = run.render(frame.camera, frame.time, background).rgb
+        renders.append(rgb.clamp(0, 1))
+        return rgb
 
-    summary, per_view = evaluate_views(
-        render, dataset.splits[args.split], lpips=lpips, lpips_error=lpips_error, quantize=quantize
-    )
+    summary, per_view = evaluate_views(render, views, lpips=lpips, lpips_error=lpips_error, quantize=quantize)
+    aligned = None
+    if refines(cfg.cameras, dataset.format):
+        aligned_summary, _ = evaluate_views(
+            aligned_render(
+                run.at_time,
+                lambda gaussians, camera: render_frame(gaussians, camera, sh_degree=run.sh_degree,
+                                                       background=background, backend=cfg.backend).rgb,
+                cfg.cameras, dataset.camera_extent, cfg.ssim_weight,
+            ),
+            views, lpips=lpips, lpips_error=lpips_error, quantize=quantize,
+        )  # fmt: skip
+        aligned = {**aligned_summary, "cameras": alignment_protocol(cfg.cameras)}
     record = {
         "kind": "re-evaluation of the final checkpoint"
         if run.finished
@@ -74,8 +100,15 @@ def evaluate_run(args: EvalArgs) -> dict:
         "split": args.split,
         "field": cfg.field,
         "scene": dataset.scene_name,
+        "cameras": "as given",
         **summary,
     }
+    if aligned is not None:
+        record["aligned"] = aligned
+    if masks is not None:
+        truths = [frame.image().clamp(0, 1) for frame in views]
+        shown = [quantize_8bit(r.cpu()) for r in renders] if quantize else [r.cpu() for r in renders]
+        record["masked"] = {"masks": str(args.mask), "cameras": "as given", **masked_scores(shown, truths, masks)}
     write_json_atomic(args.run / EVAL, record)
     write_per_view(args.run / EVAL_PER_VIEW, run.iteration, per_view)
     return record
@@ -91,4 +124,23 @@ def main(argv: list[str]) -> int:
         highlight=False,
         soft_wrap=True,
     )
+    for line in _more_lines(record):
+        Console().print(line, highlight=False, soft_wrap=True)
     return 0
+
+
+def _more_lines(record: dict) -> list[str]:
+    """The labelled second scores, one line each: aligned cameras, and inside / outside the masks."""
+    lines = []
+    if "aligned" in record:
+        a = record["aligned"]
+        lines.append(f"  test cameras aligned to the scene: PSNR {a['psnr']:.2f}  SSIM {a['ssim']:.4f}  "
+                     f"{describe_lpips(a)}  ({record['aligned']['cameras']})")  # fmt: skip
+    if "masked" in record:
+        for region in ("inside", "outside"):
+            m = record["masked"][region]
+            psnr = "n/a (empty)" if m["psnr"] is None else f"{m['psnr']:.2f}"
+            ssim = "n/a" if m["ssim"] is None else f"{m['ssim']:.4f}"
+            lines.append(f"  {region} the masks ({100 * m['share']:.1f}% of pixels), cameras as given: "
+                         f"PSNR {psnr}  SSIM {ssim}")  # fmt: skip
+    return lines

@@ -119,6 +119,18 @@ def ssim_torch(img: torch.Tensor, ref: torch.Tensor) -> torch.Tensor:
     channels. Differentiable in both images, on any device.
     """
     img_b, ref_b, single = image_pair(img, ref)
+    scores = _ssim_maps(img_b, ref_b).flatten(1).mean(dim=1)
+    return scores[0] if single else scores
+
+
+def ssim_map(img: torch.Tensor, ref: torch.Tensor) -> torch.Tensor:
+    """The SSIM map of one image pair [H, W, 3], averaged over channels: [H, W] (its mean is `ssim`)."""
+    img_b, ref_b, _ = image_pair(img, ref)
+    return _ssim_maps(img_b, ref_b)[0].mean(dim=0)
+
+
+def _ssim_maps(img_b: torch.Tensor, ref_b: torch.Tensor) -> torch.Tensor:
+    """[B, 3, H, W] SSIM maps of batched [B, H, W, 3] images."""
     channels = img_b.shape[-1]
     window = gaussian_window_1d().to(device=img_b.device, dtype=img_b.dtype)
 
@@ -132,11 +144,9 @@ def ssim_torch(img: torch.Tensor, ref: torch.Tensor) -> torch.Tensor:
     sigma_xx = xx - mu_xx
     sigma_yy = yy - mu_yy
     sigma_xy = xy - mu_xy
-    ssim_map = ((2 * mu_xy + SSIM_C1) * (2 * sigma_xy + SSIM_C2)) / (
+    return ((2 * mu_xy + SSIM_C1) * (2 * sigma_xy + SSIM_C2)) / (
         (mu_xx + mu_yy + SSIM_C1) * (sigma_xx + sigma_yy + SSIM_C2)
     )
-    scores = ssim_map.flatten(1).mean(dim=1)
-    return scores[0] if single else scores
 
 
 def quantize_8bit(img: torch.Tensor) -> torch.Tensor:

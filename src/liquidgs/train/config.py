@@ -32,6 +32,8 @@ from liquidgs.fields.config import (
 from liquidgs.fields.registry import check_recorded_field, field_record
 from liquidgs.render import BACKENDS
 from liquidgs.settings import to_dict, with_settings
+from liquidgs.train.camera_opt import CameraRefineConfig, known_format, refines
+from liquidgs.train.motion_reg import MotionRegConfig, regularises
 from liquidgs.train.strategy import DensifyConfig
 
 
@@ -115,6 +117,10 @@ class TrainConfig:
     optim: OptimConfig = dataclasses.field(default_factory=OptimConfig)
     densify: DensifyConfig = dataclasses.field(default_factory=DensifyConfig)
     eval: EvalConfig = dataclasses.field(default_factory=EvalConfig)
+    cameras: CameraRefineConfig = dataclasses.field(default_factory=CameraRefineConfig)
+    """Camera refinement (on for captures, off for D-NeRF) and the aligned evaluation of test cameras."""
+    motion: MotionRegConfig = dataclasses.field(default_factory=MotionRegConfig)
+    """Rigidity and isometry over each Gaussian's nearest neighbours (on for captures, off for D-NeRF)."""
 
     def __post_init__(self) -> None:
         own = field_options_class(self.field)
@@ -326,6 +332,17 @@ def identity(cfg: TrainConfig) -> dict:
     for key, owner in FIELD_ONLY_OPTIONS.items():
         if cfg.field != owner:
             del d["field_options"][key]
+    # Camera refinement, added after version 2: a run that does not refine (every run made before
+    # it) has no `cameras` in its identity; one that does holds them with `refine` resolved.
+    data_format = known_format(cfg.data)
+    if refines(cfg.cameras, data_format):
+        d["cameras"]["refine"] = "on"
+    else:
+        del d["cameras"]
+    if regularises(cfg.motion, data_format, cfg.field):  # the motion regularisers likewise
+        d["motion"]["apply"] = "on"
+    else:
+        del d["motion"]
     d["data"]["path"] = str(Path(d["data"]["path"]).resolve())
     d["identity"] = IDENTITY_VERSION
     return d
@@ -420,4 +437,8 @@ def from_dict(raw: dict, source: Path | str = "config") -> TrainConfig:
     """A TrainConfig from YAML (either version); a setting of the wrong type is one error naming it."""
     if not isinstance(raw.get("data"), dict):
         raw = upgrade_v1(raw)
+    if "cameras" not in raw:  # stored before camera refinement existed: trained without it
+        raw = {**raw, "cameras": {"refine": "off"}}
+    if "motion" not in raw:  # stored before the motion regularisers existed: trained without them
+        raw = {**raw, "motion": {"apply": "off"}}
     return settings.from_dict(TrainConfig, raw, source)

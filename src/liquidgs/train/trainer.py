@@ -24,11 +24,14 @@ from liquidgs.eval import LPIPS, LPIPSUnavailable, evaluate_views, ssim
 from liquidgs.eval.metrics import MIN_MSE, psnr_from_mse
 from liquidgs.fields import build_field
 from liquidgs.gaussians import PARAM_KEYS, init_from_points, init_random_box
+from liquidgs.train.camera_opt import CameraRefinement, aligned_render, alignment_protocol, refines
 from liquidgs.train.config import TrainConfig, save_yaml
 from liquidgs.train.model import deform, render_frame
+from liquidgs.train.motion_reg import MotionRegulariser, regularises
 from liquidgs.train.phases import NoClock, PhaseClock
 from liquidgs.train.run import load_run_dataset, resolve_device
 from liquidgs.train.run_folder import (
+    CAMERAS_REFINED,
     CHECKPOINT,
     CONFIG,
     PER_VIEW,
@@ -119,6 +122,14 @@ class Trainer:
         """Things the user should know about this run (printed by the train command)."""
         self.strategy = D3DGSStrategy(cfg.densify, self._scene_extent())
         self.strategy_state = self.strategy.initial_state(self.params["means"].shape[0], self.device)
+        self.cameras = (  # camera refinement: a correction per training camera, or None
+            CameraRefinement(cfg.cameras, self.dataset.train, self.strategy.scene_extent, cfg.iterations,
+                             self.device, cfg.optim.adam_eps)
+            if refines(cfg.cameras, self.dataset.format) else None
+        )  # fmt: skip
+        self.motion = (  # neighbour rigidity / isometry on the deformation, or None
+            MotionRegulariser(cfg.motion) if regularises(cfg.motion, self.dataset.format, cfg.field) else None
+        )
         self.state = TrainState()
         self.checkpoint_iteration: int | None = None
         """Iteration of the checkpoint on disk, once this trainer has written or read one."""
@@ -229,7 +240,8 @@ class Trainer:
         if step % cfg.sh_interval == 0:
             self.state.sh_degree = min(self.state.sh_degree + 1, cfg.sh_degree)
         sh_raised = self.state.sh_degree > sh_degree
-        frame = self.dataset.train[self.next_camera()]
+        index = self.next_camera()
+        frame = self.dataset.train[index]
         gt = frame.image().to(self.device)
         use_field = self.field_active(step)
         self.field.train()
@@ -239,6 +251,9 @@ class Trainer:
         gaussians = deform(self.params, self.field if use_field else None, frame.time, self.time_noise(step))
         if not all(torch.isfinite(t).all() for t in (gaussians.means, gaussians.quats, gaussians.scales)):
             raise self._diverged(f"non-finite Gaussians at iteration {step}")
+        deformed = gaussians
+        if self.cameras is not None:
+            gaussians = self.cameras.correct(gaussians, index, frame.camera, step)
         clock.mark("field_forward")
         out = self._render(gaussians, frame, absgrad=cfg.densify.gradient == "absolute")
         clock.mark("raster_forward")
@@ -247,6 +262,9 @@ class Trainer:
         regulariser = self.field.regulariser_loss() if use_field else None  # the field's own term
         if regulariser is not None:
             loss = loss + regulariser
+        if self.motion is not None and use_field:
+            p = self.params
+            loss = loss + self.motion.loss(step, p["means"], p["quats"], deformed.means, deformed.quats)
         if not torch.isfinite(loss):
             raise self._diverged(f"non-finite loss at iteration {step}")
         clock.mark("loss_forward")
@@ -267,6 +285,8 @@ class Trainer:
             if use_field:
                 self.field_optimizer.step()
             self.field_optimizer.zero_grad(set_to_none=True)
+        if self.cameras is not None:
+            self.cameras.step(step)
         clock.mark("optimizer_step")
         with torch.no_grad():
             mse = ((out.rgb.detach().clamp(0, 1) - gt) ** 2).mean()
@@ -402,6 +422,23 @@ class Trainer:
         finally:
             self.field.train()
 
+    def evaluate_aligned(self) -> dict:
+        """The test split scored with each test camera aligned to the frozen scene (pose-only, per view):
+        the second, labelled score of a run that refines its cameras."""
+        render = aligned_render(
+            lambda time: deform(self.params, self.field if self.cfg.field != "static" else None, time),
+            lambda gaussians, camera: render_frame(gaussians, camera, sh_degree=self.state.sh_degree,
+                                                   background=self.background, backend=self.cfg.backend).rgb,
+            self.cfg.cameras, self.dataset.camera_extent, self.cfg.ssim_weight,
+        )  # fmt: skip
+        self.field.eval()
+        try:
+            summary, _ = evaluate_views(render, self.dataset.test, lpips=self.lpips, lpips_error=self.lpips_error,
+                                        quantize=self.cfg.eval.quantize_8bit)  # fmt: skip
+        finally:
+            self.field.train()
+        return {"iteration": self.cfg.iterations, **summary, "cameras": alignment_protocol(self.cfg.cameras)}
+
     def evaluate_and_record(self, step: int) -> None:
         summary, per_view = self.evaluate()
         record = {"iteration": step, **summary}
@@ -473,6 +510,7 @@ class Trainer:
             resolution=[self.dataset.train[0].camera.width, self.dataset.train[0].camera.height],
             perturb=cfg.perturb.settings(),
             views={"train": len(self.dataset.train), "test": len(self.dataset.test)},
+            final_aligned=self.evaluate_aligned() if self.cameras is not None else {},
         )
         write_per_view(self.run_dir / PER_VIEW, cfg.iterations, per_view)
         write_results(self.run_dir, results)
@@ -491,8 +529,12 @@ class Trainer:
             "state": dataclasses.asdict(self.state),
             "torch_rng": torch.get_rng_state(),
             "camera_rng": self.camera_rng.bit_generator.state,
+            "cameras": self.cameras.state_dict() if self.cameras is not None else None,
+            "motion": self.motion.state_dict() if self.motion is not None else None,
         }
         path = write_checkpoint(self.run_dir, contents)
+        if self.cameras is not None:
+            self.cameras.write(self.run_dir / CAMERAS_REFINED, self.state.iteration)
         self.checkpoint_iteration = self.state.iteration
         return path
 
@@ -501,6 +543,10 @@ class Trainer:
         payload = read_checkpoint(path)
         try:
             self._restore(payload)
+            if self.cameras is not None:  # a checkpoint made before refinement existed holds no "cameras"
+                self.cameras.load_state_dict(payload.get("cameras"), path)
+            if self.motion is not None:
+                self.motion.load_state_dict(payload.get("motion"))
         except FieldGroupsChanged as err:
             raise LiquidGSError(f"{path}: {err}") from None
         except (KeyError, TypeError, ValueError, RuntimeError) as err:  # weights of another config

@@ -5,6 +5,7 @@ experiments read. Readers import this package, never the training loop.
     checkpoint.pt     the latest checkpoint (CHECKPOINT_FORMAT)
     per_view.json     each test view's scores at the last iteration
     results.json      RunResults (RESULTS_FORMAT), written last: the run's only "done" marker
+    cameras_refined.json  how far camera refinement moved each training camera (runs that refine)
     tensorboard/      training curves
     eval.json, eval_per_view.json   written by `liquidgs eval`
     .liquidgs.lock    held by the one process writing the folder (lock.py)
@@ -14,6 +15,7 @@ Each file is written atomically. A folder is empty, configured, unfinished, fini
 """
 
 from liquidgs.train.run_folder.layout import (
+    CAMERAS_REFINED,
     CHECKPOINT,
     CONFIG,
     EVAL,
@@ -40,6 +42,7 @@ from liquidgs.train.run_folder.records import (
 from liquidgs.train.run_folder.rules import check_resume_progress, check_run_dir
 
 __all__ = [
+    "CAMERAS_REFINED",
     "CHECKPOINT",
     "CHECKPOINT_FORMAT",
     "CONFIG",

@@ -11,7 +11,9 @@ CHECKPOINT = "checkpoint.pt"
 PER_VIEW = "per_view.json"
 RESULTS = "results.json"
 """Written last: the run's only "done" marker."""
-RUN_FILES = (CONFIG, CHECKPOINT, PER_VIEW, RESULTS)
+CAMERAS_REFINED = "cameras_refined.json"
+"""How far camera refinement moved each training camera (with each checkpoint of a run that refines)."""
+RUN_FILES = (CONFIG, CHECKPOINT, PER_VIEW, RESULTS, CAMERAS_REFINED)
 """What the trainer writes into a run folder (besides TENSORBOARD), each atomically."""
 TENSORBOARD = "tensorboard"
 EVAL = "eval.json"

@@ -61,9 +61,15 @@ class RunResults:
     """The perturbations switched on, by name (data.perturb)."""
     views: dict
     """{"train": n, "test": n}."""
+    final_aligned: dict = dataclasses.field(default_factory=dict)
+    """Runs that refine their cameras: the final evaluation again with each test camera aligned to the
+    frozen scene (its "cameras" says how); `final` is with the test cameras as given. Empty for a run
+    that does not refine, and then left out of results.json, as before refinement existed."""
 
     def to_json(self) -> dict:
-        return {_json_key(name): value for name, value in dataclasses.asdict(self).items()}
+        # final_aligned only where there is one: a run without refinement writes what it did before.
+        return {_json_key(name): value for name, value in dataclasses.asdict(self).items()
+                if name != "final_aligned" or value}  # fmt: skip
 
     @classmethod
     def from_json(cls, raw, path: Path) -> RunResults:
@@ -80,6 +86,8 @@ class RunResults:
             if name == "format":
                 continue
             if key not in raw:
+                if _has_default(cls, name):  # added to the format later
+                    continue
                 raise LiquidGSError(f"{path}: field '{key}' is missing")
             if not _is_a(raw[key], types[name]):
                 raise LiquidGSError(f"{path}: field '{key}' is not {_JSON_KINDS[types[name]]}")
@@ -101,6 +109,11 @@ def check_results_format(raw: dict, path: Path) -> None:
     version = raw.get("format", RESULTS_FORMAT)
     if version != RESULTS_FORMAT:
         raise LiquidGSError(f"{path}: results format {version!r} is not one this liquidgs reads ({RESULTS_FORMAT})")
+
+
+def _has_default(cls, name: str) -> bool:
+    field = next(f for f in dataclasses.fields(cls) if f.name == name)
+    return field.default is not dataclasses.MISSING or field.default_factory is not dataclasses.MISSING
 
 
 def _json_key(name: str) -> str:

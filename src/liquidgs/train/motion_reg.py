@@ -1,0 +1,124 @@
+"""Motion that holds together: regularisers on the deformation over each Gaussian's k nearest
+canonical neighbours, after the warm-up.
+
+Chosen from Dynamic 3D Gaussians (Luiten et al.): local rigidity and isometry, with the canonical
+Gaussians (the field's zero-delta state) as the reference frame instead of the previous time step,
+since a deformation field maps canonical space to each time. Not SC-GS's as-rigid-as-possible
+loss: that acts on its sparse control nodes, which liquidgs's per-Gaussian fields do not have.
+
+- rigidity: each neighbour offset turns with its Gaussian: (x_j(t) - x_i(t)) against
+  R_i(t) R_i(0)^T (x_j(0) - x_i(0)), with R from the deformed and canonical rotations;
+- isometry: neighbour distances are kept: | |x_j(t) - x_i(t)| - |x_j(0) - x_i(0)| |.
+
+Both are means over `anchors` Gaussians drawn each step (torch's generator, so a resumed run draws
+the same) and their k neighbours, found once per `knn_every` iterations and whenever the Gaussians
+were added or removed; the neighbour table is checkpointed so a resumed run continues bit-exactly.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+import torch
+from scipy.spatial import cKDTree
+
+from liquidgs.errors import ConfigError
+from liquidgs.render.projection import quat_to_rotmat
+from liquidgs.train.camera_opt import CAPTURE_FORMATS
+
+APPLY_CHOICES = ("auto", "on", "off")
+
+
+@dataclass
+class MotionRegConfig:
+    """Neighbour regularisers on the deformation (Dynamic 3D Gaussians' rigidity and isometry)."""
+
+    apply: Literal["auto", "on", "off"] = "auto"
+    """auto: on for captures (the Nerfies layout), off for D-NeRF. A config.yml made before these
+    regularisers existed has none, and trains without them (off). Only fields that deform."""
+    rigidity: float = 0.5
+    """Weight of the local-rigidity term."""
+    isometry: float = 0.5
+    """Weight of the isometry term."""
+    neighbours: int = 8
+    anchors: int = 2048
+    """Gaussians the terms are averaged over each step (all when fewer)."""
+    knn_every: int = 100
+
+    def __post_init__(self) -> None:
+        if self.apply not in APPLY_CHOICES:
+            raise ConfigError(f"motion.apply must be one of {', '.join(APPLY_CHOICES)}, got {self.apply!r}")
+        for name in ("neighbours", "anchors", "knn_every"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ConfigError(f"motion.{name.replace('_', '-')} must be an integer >= 1, got {value!r}")
+        for name in ("rigidity", "isometry"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
+                raise ConfigError(f"motion.{name} must be a finite number >= 0, got {value!r}")
+
+
+def regularises(cfg: MotionRegConfig, data_format: str | None, field: str) -> bool:
+    if field == "static":
+        return False
+    if cfg.apply != "auto":
+        return cfg.apply == "on"
+    return data_format in CAPTURE_FORMATS
+
+
+def nearest_neighbours(points: torch.Tensor, k: int) -> torch.Tensor:
+    """int64 [N, k'] indices of each point's k nearest other points (k' = min(k, N - 1))."""
+    xyz = points.detach().cpu().double().numpy()
+    kk = min(k, len(xyz) - 1)
+    if kk < 1:
+        return torch.zeros(len(xyz), 0, dtype=torch.int64)
+    _, idx = cKDTree(xyz).query(xyz, k=kk + 1)
+    own = idx == np.arange(len(xyz))[:, None]
+    # Drop each row's own index (or, with duplicates elsewhere, its farthest hit).
+    drop = np.where(own.any(axis=1), own.argmax(axis=1), kk)
+    keep = np.ones_like(own)
+    keep[np.arange(len(xyz)), drop] = False
+    return torch.from_numpy(idx[keep].reshape(len(xyz), kk)).long()
+
+
+class MotionRegulariser:
+    def __init__(self, cfg: MotionRegConfig):
+        self.cfg = cfg
+        self.table: torch.Tensor | None = None
+        self.table_step = -1
+
+    def loss(self, step: int, canonical_means, canonical_quats, means, quats) -> torch.Tensor:
+        """The weighted terms at this step: canonical (params) and deformed Gaussians."""
+        c = self.cfg
+        n = canonical_means.shape[0]
+        stale = self.table is None or self.table.shape[0] != n or step - self.table_step >= c.knn_every
+        if stale:
+            self.table, self.table_step = nearest_neighbours(canonical_means, c.neighbours), step
+        if self.table.shape[1] == 0:
+            return canonical_means.new_zeros(())
+        anchors = torch.randperm(n, device=canonical_means.device)[: c.anchors] if n > c.anchors else None
+        table = self.table.to(canonical_means.device)
+        rows = table if anchors is None else table[anchors]
+        i = torch.arange(n, device=table.device)[:, None] if anchors is None else anchors[:, None]
+        x0 = canonical_means.detach()
+        offset0 = x0[rows] - x0[i]  # [A, k, 3]
+        offset_t = means[rows] - means[i]
+        terms = canonical_means.new_zeros(())
+        if c.rigidity > 0:
+            r0 = quat_to_rotmat(canonical_quats.detach()[i[:, 0]])
+            rt = quat_to_rotmat(quats[i[:, 0]])
+            turned = torch.einsum("aij,akj->aki", rt @ r0.transpose(1, 2), offset0)
+            terms = terms + c.rigidity * (offset_t - turned).norm(dim=-1).mean()
+        if c.isometry > 0:
+            terms = terms + c.isometry * (offset_t.norm(dim=-1) - offset0.norm(dim=-1)).abs().mean()
+        return terms
+
+    def state_dict(self) -> dict:
+        return {"table": self.table, "table_step": self.table_step}
+
+    def load_state_dict(self, saved: dict | None) -> None:
+        if saved is not None:
+            self.table, self.table_step = saved["table"], int(saved["table_step"])

@@ -1,0 +1,232 @@
+"""Camera refinement: the rigid correction, its gradients, pose recovery on a frozen scene, the
+run-away bound, the settings' identity, and checkpoints (bit-exact resume, runs made before it)."""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+import yaml
+
+from liquidgs.cameras import Camera, camera_centre, look_at
+from liquidgs.commands.train import resolve_config
+from liquidgs.data import generate_synthetic
+from liquidgs.data.perturb import rotation_about
+from liquidgs.errors import LiquidGSError
+from liquidgs.train.camera_opt import (
+    CameraRefineConfig,
+    CameraRefinement,
+    align_camera,
+    corrected_viewmat,
+    move_gaussians,
+)
+from liquidgs.train.config import config_hash, differing_settings, identity, load_yaml
+from liquidgs.train.model import Deformed, render_frame
+from liquidgs.train.trainer import Trainer
+from shared_data import use_optional_lpips
+from tiny_runs import one_line_error, run_cli, run_train, tiny_flags
+
+SIZE = 40
+
+
+def _scene(n: int = 400, spread: float = 1.6, scale: float = 0.06) -> Deformed:
+    """Frozen Gaussians: a cube of `spread` of small coloured Gaussians around the origin."""
+    g = torch.Generator().manual_seed(0)
+    means = (torch.rand(n, 3, generator=g) - 0.5) * spread
+    return Deformed(
+        means=means,
+        quats=torch.nn.functional.normalize(torch.randn(n, 4, generator=g), dim=-1),
+        scales=torch.full((n, 3), scale),
+        opacities=torch.full((n,), 0.9),
+        colors=torch.rand(n, 1, 3, generator=g),
+    )
+
+
+def _camera(viewmat: torch.Tensor) -> Camera:
+    return Camera.from_fov(viewmat, math.radians(50.0), SIZE, SIZE)
+
+
+def _render(gaussians: Deformed, camera: Camera, backend: str = "auto") -> torch.Tensor:
+    return render_frame(gaussians, camera, sh_degree=0, background=torch.zeros(3), backend=backend).rgb
+
+
+TRUE_VIEW = look_at(torch.tensor([0.3, -0.4, 3.5]), torch.zeros(3), torch.tensor([0.0, -1.0, 0.0]))
+
+
+def _moved(viewmat: torch.Tensor, degrees: float, shift: list[float]) -> torch.Tensor:
+    """The camera turned about its centre by `degrees` around a fixed axis and its centre moved."""
+    rotation = rotation_about(np.array([0.48, 0.6, 0.64]), math.radians(degrees))
+    r = viewmat.double().numpy()[:3, :3] @ rotation.T
+    centre = camera_centre(viewmat.double()).numpy() + np.array(shift)
+    out = np.eye(4)
+    out[:3, :3], out[:3, 3] = r, -r @ centre
+    return torch.from_numpy(out).float()
+
+
+def _pose_error(a: torch.Tensor, b: torch.Tensor) -> tuple[float, float]:
+    """Rotation angle (degrees) and centre distance between two world->camera matrices."""
+    relative = a[:3, :3].double() @ b[:3, :3].double().T
+    angle = math.degrees(math.acos(max(-1.0, min(1.0, (float(torch.trace(relative)) - 1) / 2))))
+    return angle, float((camera_centre(a.double()) - camera_centre(b.double())).norm())
+
+
+def test_moving_the_gaussians_is_moving_the_camera():
+    """Rendering M x with V is rendering x with D V (SH degree 0: no view-dependent colour)."""
+    scene, camera = _scene(), _camera(TRUE_VIEW)
+    omega, tau = torch.tensor([0.02, -0.03, 0.01]), torch.tensor([0.05, -0.02, 0.04])
+    moved = _render(move_gaussians(scene, camera.viewmat, omega, tau), camera, "torch")
+    direct = _render(scene, _camera(corrected_viewmat(camera.viewmat, omega, tau)), "torch")
+    assert (moved - direct).abs().max() < 2e-4
+    assert (moved - _render(scene, camera, "torch")).abs().max() > 0.05  # the correction did move the view
+
+
+def test_a_zero_correction_is_the_camera_as_given_and_passes_gradients():
+    scene, camera = _scene(), _camera(TRUE_VIEW)
+    omega = torch.zeros(3, requires_grad=True)
+    tau = torch.zeros(3, requires_grad=True)
+    rgb = _render(move_gaussians(scene, camera.viewmat, omega, tau), camera)  # compiled CPU kernels where built
+    assert torch.equal(rgb.detach(), _render(scene, camera))
+    (rgb * torch.linspace(0, 1, SIZE)[None, :, None]).sum().backward()
+    assert omega.grad.abs().sum() > 0 and tau.grad.abs().sum() > 0 and torch.isfinite(omega.grad).all()
+
+
+def test_alignment_recovers_a_perturbed_camera_on_a_frozen_scene():
+    """The pose-only optimisation of aligned evaluation (and of refinement, one camera at a time).
+    The scene spans depth (points 1.5-5.5 from the camera), or a turn and a sideways move look
+    alike and the pose is not determined by the image."""
+    scene = _scene(n=1500, spread=4.0, scale=0.08)
+    truth = _render(scene, _camera(TRUE_VIEW))
+    noisy = _camera(_moved(TRUE_VIEW, 2.0, [0.04, -0.03, 0.02]))
+    before = _pose_error(noisy.viewmat, TRUE_VIEW)
+    omega, tau = align_camera(_render, scene, noisy, truth, steps=100, lr=5e-3, extent=1.0)
+    after = _pose_error(corrected_viewmat(noisy.viewmat, omega, tau), TRUE_VIEW)
+    assert before[0] > 1.9 and before[1] > 0.05
+    assert after[0] < 0.25 * before[0] and after[1] < 0.25 * before[1], (before, after)
+
+
+def test_a_correction_past_its_bound_is_one_line_naming_the_frame():
+    frames = [type("F", (), {"name": name})() for name in ("000001", "000002")]
+    refinement = CameraRefinement(CameraRefineConfig(max_rotation_deg=5.0), frames, 2.0, 100, "cpu", 1e-15)
+    refinement.check_bounds(1)
+    with torch.no_grad():
+        refinement.rotations[1] = torch.tensor([0.0, math.radians(6.0), 0.0])
+    with pytest.raises(LiquidGSError, match="train frame '000002' turned 6.00 deg") as err:
+        refinement.check_bounds(7)
+    assert "\n" not in str(err.value) and "iteration 7" in str(err.value)
+
+
+# ---------------------------------------------------------------------- runs
+@pytest.fixture(scope="module")
+def capture(tmp_path_factory) -> Path:
+    """The built-in puppet in both layouts: nerfies/ is a capture, dnerf/ has exact cameras."""
+    return generate_synthetic("puppet", tmp_path_factory.mktemp("capture") / "puppet", size=24, frames=16, seed=2)
+
+
+@pytest.fixture(autouse=True)
+def optional_lpips(monkeypatch):
+    use_optional_lpips(monkeypatch)
+
+
+def test_refinement_is_on_for_captures_only_and_off_leaves_the_identity_as_it_was(capture):
+    nerfies, _ = resolve_config(["--data", str(capture / "nerfies"), "--preset", "tiny"])
+    off, _ = resolve_config(["--data", str(capture / "nerfies"), "--preset", "tiny", "--cameras.refine", "off"])
+    dnerf, _ = resolve_config(["--data", str(capture / "dnerf"), "--preset", "tiny"])
+    assert identity(nerfies)["cameras"]["refine"] == "on"
+    assert "cameras" not in identity(off) and "cameras" not in identity(dnerf)  # the identity of before
+    assert {"cameras.refine", "cameras.rotation_lr"} <= set(differing_settings(nerfies, off))
+    assert config_hash(nerfies) != config_hash(off)
+    explicit, _ = resolve_config(["--data", str(capture / "nerfies"), "--preset", "tiny", "--cameras.refine", "on"])
+    assert config_hash(explicit) == config_hash(nerfies)
+
+
+REFINE_RUN = tiny_flags({"iterations": 30, "checkpoint_every": 10, "eval.start": 30, "cameras.align_steps": 5})
+
+
+def test_a_refining_run_resumes_bit_exactly_and_writes_its_corrections(capture, tmp_path, monkeypatch):
+    flags = ["--data", str(capture / "nerfies"), "--field", "mlp", *REFINE_RUN]
+    whole = run_train([*flags, "--out", str(tmp_path / "whole")])
+    assert whole.final_aligned["n_views"] == whole.final["n_views"] and "aligned" in whole.final_aligned["cameras"]
+
+    original_step = Trainer.train_step
+
+    def stop(self, step):
+        if step == 15:
+            raise KeyboardInterrupt
+        return original_step(self, step)
+
+    monkeypatch.setattr(Trainer, "train_step", stop)
+    with pytest.raises(KeyboardInterrupt):
+        run_train([*flags, "--out", str(tmp_path / "cut")])
+    monkeypatch.setattr(Trainer, "train_step", original_step)
+    run_train([*flags, "--out", str(tmp_path / "cut"), "--resume"])
+
+    a = torch.load(tmp_path / "whole" / "checkpoint.pt", weights_only=True)
+    b = torch.load(tmp_path / "cut" / "checkpoint.pt", weights_only=True)
+    assert a["cameras"]["rotations"].abs().max() > 0  # the corrections were learned
+    for key in ("rotations", "translations"):
+        assert torch.equal(a["cameras"][key], b["cameras"][key]), key
+    for key, value in a["params"].items():
+        assert torch.equal(value, b["params"][key]), key
+    written = json.loads((tmp_path / "whole" / "cameras_refined.json").read_text())
+    assert written["iteration"] == 30 and len(written["frames"]) == whole.views["train"]
+    assert written["max_rotation_deg"] == max(f["rotation_deg"] for f in written["frames"]) > 0
+
+
+def test_a_run_made_before_refinement_resumes_without_it(capture, tmp_path, monkeypatch, capsys):
+    """Its config.yml has no `cameras` and its checkpoint none: it continues as it was trained."""
+    out = tmp_path / "old"
+    flags = ["--data", str(capture / "nerfies"), "--field", "static", *REFINE_RUN, "--out", str(out)]
+    original_step = Trainer.train_step
+
+    def stop(self, step):
+        if step == 15:
+            raise KeyboardInterrupt
+        return original_step(self, step)
+
+    monkeypatch.setattr(Trainer, "train_step", stop)
+    with pytest.raises(KeyboardInterrupt):
+        run_train([*flags, "--cameras.refine", "off"])
+    monkeypatch.setattr(Trainer, "train_step", original_step)
+    stored = yaml.safe_load((out / "config.yml").read_text())
+    del stored["cameras"]
+    (out / "config.yml").write_text(yaml.safe_dump(stored, sort_keys=False))
+    payload = torch.load(out / "checkpoint.pt", weights_only=True)
+    del payload["cameras"]
+    torch.save(payload, out / "checkpoint.pt")
+    assert load_yaml(out / "config.yml").cameras.refine == "off"
+    code, _, _ = run_cli(["train", "--out", str(out), "--resume"])
+    assert code == 0 and not (out / "cameras_refined.json").exists()
+    assert "final_aligned" not in json.loads((out / "results.json").read_text())
+    # Turning refinement on for it is a changed setting, refused in one line.
+    code, _, err = run_cli(["train", "--out", str(out), "--resume", "--iterations", "40", "--cameras.refine", "on"])
+    assert code == 2 and "cameras.refine" in err
+
+
+def test_a_refining_checkpoint_without_corrections_is_one_line(capture, tmp_path, monkeypatch, capsys):
+    out = tmp_path / "run"
+    flags = ["--data", str(capture / "nerfies"), "--field", "static", *REFINE_RUN, "--out", str(out)]
+    original_step = Trainer.train_step
+
+    def stop(self, step):
+        if step == 15:
+            raise KeyboardInterrupt
+        return original_step(self, step)
+
+    monkeypatch.setattr(Trainer, "train_step", stop)
+    with pytest.raises(KeyboardInterrupt):
+        run_train(flags)
+    monkeypatch.setattr(Trainer, "train_step", original_step)
+    payload = torch.load(out / "checkpoint.pt", weights_only=True)
+    payload["cameras"] = None
+    torch.save(payload, out / "checkpoint.pt")
+    shutil.copy(out / "checkpoint.pt", tmp_path / "kept.pt")
+    capsys.readouterr()
+    from liquidgs.cli import main as cli
+
+    assert cli(["train", "--out", str(out), "--resume"]) == 2
+    assert "trained without camera refinement" in one_line_error(capsys)

@@ -1,0 +1,90 @@
+"""`liquidgs eval --mask DIR` (scores inside and outside per-view masks) and the aligned second score
+of a run that refined its cameras."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from PIL import Image
+
+from liquidgs.cli import main as cli
+from liquidgs.data import generate_synthetic, load_dataset
+from liquidgs.data.scene import DataConfig
+from liquidgs.eval.masks import masked_scores
+from shared_data import use_optional_lpips
+from tiny_runs import one_line_error, run_train, tiny_flags
+
+
+def test_masked_scores_keep_the_regions_apart():
+    truth = torch.rand(16, 16, 3, generator=torch.Generator().manual_seed(0))
+    truth = torch.round(truth * 255) / 255
+    render = truth.clone()
+    render[:, 8:] = torch.round(((render[:, 8:] + 0.1) % 1) * 255) / 255  # wrong on the right half only
+    mask = np.zeros((16, 16), bool)
+    mask[:, :6] = True  # inside: the left 6 columns, exact there and >= 2 px from the wrong half
+    scores = masked_scores([render], [truth], [mask])
+    assert scores["inside"]["psnr"] == pytest.approx(120.0) and scores["outside"]["psnr"] < 25
+    assert scores["inside"]["ssim"] > scores["outside"]["ssim"]
+    assert scores["inside"]["share"] + scores["outside"]["share"] == pytest.approx(1.0)
+
+
+@pytest.fixture(autouse=True)
+def optional_lpips(monkeypatch):
+    use_optional_lpips(monkeypatch)
+
+
+@pytest.fixture(scope="module")
+def refined_run(tmp_path_factory) -> tuple[Path, Path]:
+    """A 30-iteration run on the puppet's Nerfies layout (a capture: cameras refined) and its scene."""
+    root = tmp_path_factory.mktemp("masks")
+    scene = generate_synthetic("puppet", root / "puppet", size=24, frames=16, seed=3) / "nerfies"
+    out = root / "run"
+    flags = tiny_flags({"iterations": 30, "eval.start": 30, "cameras.align_steps": 5})
+    run_train(["--data", str(scene), "--field", "mlp", "--out", str(out), *flags])
+    return out, scene
+
+
+def _write_masks(folder: Path, scene: Path, size: tuple[int, int] | None = None, skip: int = 0) -> list[str]:
+    folder.mkdir()
+    views = load_dataset(DataConfig(path=scene)).test
+    for view in views[skip:]:
+        width, height = size or (view.camera.width, view.camera.height)
+        mask = np.zeros((height, width), np.uint8)
+        mask[:, : width // 3] = 255
+        Image.fromarray(mask).save(folder / f"{view.name}.png")
+    return [view.name for view in views]
+
+
+def test_eval_scores_given_aligned_and_masked_apart(refined_run, tmp_path, capsys):
+    run, scene = refined_run
+    _write_masks(tmp_path / "masks", scene)
+    assert cli(["eval", "--run", str(run), "--mask", str(tmp_path / "masks")]) == 0
+    record = json.loads((run / "eval.json").read_text())
+    results = json.loads((run / "results.json").read_text())
+    assert record["cameras"] == "as given" and record["psnr"] == pytest.approx(results["final"]["psnr"], abs=1e-6)
+    assert record["aligned"]["cameras"].startswith("each test camera aligned to the frozen scene by pose-only")
+    assert record["aligned"]["psnr"] == pytest.approx(results["final_aligned"]["psnr"], abs=1e-6)
+    masked = record["masked"]
+    assert masked["cameras"] == "as given"
+    assert masked["inside"]["share"] == pytest.approx(8 / 24) and masked["outside"]["share"] == pytest.approx(16 / 24)
+    assert all(masked[r]["psnr"] > 5 and 0 < masked[r]["ssim"] <= 1 for r in ("inside", "outside"))
+    out = capsys.readouterr().out
+    assert "test cameras aligned to the scene: PSNR" in out and "inside the masks (33.3% of pixels)" in out
+
+
+@pytest.mark.parametrize("fault", ["size", "count"])
+def test_a_wrong_mask_is_one_line_naming_its_file(refined_run, tmp_path, capsys, fault):
+    run, scene = refined_run
+    (run / "eval.json").unlink(missing_ok=True)
+    names = _write_masks(tmp_path / "masks", scene, size=(20, 24) if fault == "size" else None,
+                         skip=1 if fault == "count" else 0)  # fmt: skip
+    capsys.readouterr()
+    assert cli(["eval", "--run", str(run), "--mask", str(tmp_path / "masks")]) == 2
+    line = one_line_error(capsys)
+    assert f"{tmp_path / 'masks' / names[0]}.png" in line
+    assert ("mask is 20x24, view" in line) if fault == "size" else ("no mask for view" in line)
+    assert not (run / "eval.json").exists()
