@@ -36,8 +36,6 @@ import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import yaml
-
 from liquidgs import settings
 from liquidgs.data import SYNTHETIC_SCENES, PerturbConfig
 from liquidgs.errors import ConfigError
@@ -490,9 +488,5 @@ def load_spec(name_or_path: str | Path) -> ExperimentSpec:
         raise ConfigError(
             f"{key}: no such spec file, and not a built-in spec (built-in: {', '.join(BUILTIN_SPECS)})"
         )
-    try:
-        raw = yaml.safe_load(path.read_text())
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as err:
-        first = str(err).splitlines()[0] if str(err) else type(err).__name__
-        raise ConfigError(f"{path}: unreadable spec ({first})") from None
+    raw = settings.load_yaml_file(path, "spec")
     return spec_from_dict(raw, str(path))

@@ -369,10 +369,7 @@ def save_yaml(cfg: TrainConfig, path: Path) -> None:
 
 
 def load_yaml(path: Path) -> TrainConfig:
-    try:
-        raw = yaml.safe_load(path.read_text())
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as err:
-        raise ConfigError(f"{path}: unreadable run config ({type(err).__name__})") from None
+    raw = settings.load_yaml_file(path, "run config")
     if not isinstance(raw, dict) or "data" not in raw:
         raise ConfigError(f"{path}: not a liquidgs run config (no 'data')")
     return from_dict(raw, path)
