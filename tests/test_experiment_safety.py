@@ -8,6 +8,8 @@ import time
 import pytest
 
 from liquidgs.cli import main as cli
+from liquidgs.errors import ConfigError
+from liquidgs.experiments import spec_from_dict
 from tiny_runs import one_line_error
 
 # Nine levels of nine aliases: 9^9 (387 million) values once expanded, from 470 bytes of YAML.
@@ -41,3 +43,16 @@ def test_yaml_aliases_in_a_spec_are_one_line(tmp_path, capsys, aliases):
     argv = ["experiment", "run", str(spec), "--data-root", str(tmp_path), "--out", str(tmp_path / "e")]
     assert f"{spec}: spec holds more than 100,000 values" in _refused_quickly(argv, capsys)
     assert not (tmp_path / "e").exists()
+
+
+# ----------------------------------------------------------------------------- spec paths
+@pytest.mark.parametrize(
+    ("key", "value"),
+    [("dataset", "../.."), ("dataset", "/tmp/elsewhere"), ("dataset", "a/b"), ("scenes", ["../../x"]),
+     ("scenes", ["/abs/scene"]), ("scenes", [".."])],
+)  # fmt: skip
+def test_spec_paths_that_leave_the_experiment_folder_are_refused(key, value):
+    raw = {"name": "e", "preset": "tiny", "scenes": ["a"], "fields": ["mlp"], key: value}
+    with pytest.raises(ConfigError) as err:
+        spec_from_dict(raw, "s.yml")
+    assert str(err.value).startswith(f"s.yml: '{key}' must") and repr(value if key == "dataset" else value[0]) in str(err.value)
