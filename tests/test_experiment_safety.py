@@ -55,4 +55,5 @@ def test_spec_paths_that_leave_the_experiment_folder_are_refused(key, value):
     raw = {"name": "e", "preset": "tiny", "scenes": ["a"], "fields": ["mlp"], key: value}
     with pytest.raises(ConfigError) as err:
         spec_from_dict(raw, "s.yml")
-    assert str(err.value).startswith(f"s.yml: '{key}' must") and repr(value if key == "dataset" else value[0]) in str(err.value)
+    named = value if key == "dataset" else value[0]
+    assert str(err.value).startswith(f"s.yml: '{key}' must") and repr(named) in str(err.value)

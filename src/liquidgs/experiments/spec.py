@@ -331,7 +331,7 @@ BUILTIN_SPECS["stress-mini"] = ExperimentSpec(
 
 def _folder_safe(value) -> bool:
     """A name that is one folder under the experiment's: no '/', not '.', '..' or hidden."""
-    return isinstance(value, str) and bool(value) and "/" not in value and "\\" not in value and not value.startswith(".")
+    return isinstance(value, str) and bool(value) and not {"/", "\\"} & set(value) and not value.startswith(".")
 
 
 def _as_tuple(value, key: str, source: str, kind) -> tuple:
