@@ -258,6 +258,22 @@ def write_manifest(experiment: Experiment) -> Path:
     )
 
 
+def check_same_experiment(experiment: Experiment) -> bool:
+    """Refuse a folder that holds another spec's experiment (its experiment.json would be replaced
+    and its runs would leave its report). Returns whether the folder holds this spec as it was
+    last run (False: a new folder, or this spec's name with other grids)."""
+    if not (experiment.directory / MANIFEST).is_file():
+        return False
+    existing = read_manifest(experiment.directory)
+    name = existing.spec.get("name") if isinstance(existing.spec, dict) else None
+    if name != experiment.spec["name"]:
+        raise ConfigError(
+            f"{experiment.directory}: holds the experiment '{name}', not '{experiment.spec['name']}'; "
+            "choose another --out"
+        )
+    return json.loads(json.dumps(experiment.spec)) == existing.spec
+
+
 def read_manifest(directory: str | Path) -> Experiment:
     """The experiment `liquidgs experiment run` wrote to DIR/experiment.json."""
     directory = Path(directory)
