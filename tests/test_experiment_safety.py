@@ -89,7 +89,8 @@ def test_an_experiment_folder_holding_another_experiment_is_refused(tmp_path, ca
     """Before: experiment.json was replaced, the first experiment's runs left its report."""
     monkeypatch.setattr(runner, "execute_run", _fake_training([]))
     data, out = tmp_path / "data", tmp_path / "out"
-    assert cli(["experiment", "run", str(_spec_file(tmp_path, "first")), "--data-root", str(data), "--out", str(out)]) == 1
+    first = _spec_file(tmp_path, "first")
+    assert cli(["experiment", "run", str(first), "--data-root", str(data), "--out", str(out)]) == 1
     capsys.readouterr()
     manifest = (out / "experiment.json").read_bytes()
     argv = ["experiment", "run", str(_spec_file(tmp_path, "second")), "--data-root", str(data), "--out", str(out)]
