@@ -164,8 +164,8 @@ def test_a_scene_that_changed_since_training_is_refused_by_eval_resume_and_train
                      ["train", "--config", str(run / "config.yml"), "--out", str(run)]):  # fmt: skip
             assert cli(argv) == 2
             assert one_line_error(capsys).endswith(
-                f"{scene}: not the scene the run in {run} was trained on (1 file(s) changed, e.g. transforms_test.json);"
-                " nothing was written"
+                f"{scene}: not the scene the run in {run} was trained on "
+                "(1 file(s) changed, e.g. transforms_test.json); nothing was written"
             )
         assert snapshot(run) == before
     finally:
