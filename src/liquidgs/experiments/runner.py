@@ -24,7 +24,7 @@ from queue import Queue
 
 from liquidgs.errors import ConfigError
 from liquidgs.experiments.plan import Experiment, RunEntry
-from liquidgs.train.config import legacy_config_hash, save_yaml
+from liquidgs.train.config import folder_names, save_yaml
 from liquidgs.train.run_folder import CHECKPOINT, RESULTS
 
 LOGS = "logs"
@@ -244,8 +244,8 @@ def finished_elsewhere(entry: RunEntry, experiment_dir: Path) -> Path | None:
         return None
     siblings = [p for p in sorted(directory.parent.iterdir()) if p.is_dir() and p.resolve() != directory.resolve()]
     names = [Path(entry.run_dir)]
-    if entry.config is not None:  # a sibling made before config identity 2 holds it under its version-1 hash
-        names.append(names[0].parent / legacy_config_hash(entry.train_config()))
+    if entry.config is not None:  # a sibling made before config identity 3 holds it under an older hash
+        names += [names[0].parent / name for name in folder_names(entry.train_config())]
     return next((p / name for p in siblings for name in names if (p / name / RESULTS).is_file()), None)
 
 
