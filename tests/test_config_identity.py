@@ -1,4 +1,4 @@
-"""Config identity 2, and run folders named by identity 1 (made before it) still found.
+"""Config identity 3 (2, normalised), and run folders named by identities 2 and 1 still found.
 
 tests/data/config_v1 was made by liquidgs 52e35db, the last code with identity 1: hashes.json
 holds four configurations resolved from `liquidgs train` arguments with their hashes, and
@@ -23,8 +23,10 @@ from liquidgs.train.config import (
     IDENTITY_VERSION,
     config_hash,
     differing_settings,
+    folder_names,
     from_dict,
     identity,
+    identity_v2,
     legacy_config_hash,
     load_yaml,
     preset_config,
@@ -50,7 +52,7 @@ def test_version_1_hashes_are_reproduced(name):
 def test_identity_2_holds_every_setting_that_changes_a_run():
     cfg = preset_config("tiny", Path("scene"))
     d = identity(cfg)
-    assert d["identity"] == IDENTITY_VERSION == 2
+    assert d["identity"] == 2 and IDENTITY_VERSION == 3  # version 3 normalises, the dict keeps its marker
     assert d["data"]["path"] == str(Path("scene").resolve()) and "cache_images" not in d["data"]
     assert not {"out", "resume", "device", "backend", "checkpoint_every"} & set(d)
     assert d["eval"]["also"] == [] and d["densify"]["max_per_pixel"] == 0 and "time_jitter" in d["perturb"]
@@ -115,3 +117,79 @@ def test_an_experiment_finds_its_runs_made_before_identity_2(tmp_path):
     sibling = tmp_path / "other"
     shutil.move(directory, sibling)
     assert finished_elsewhere(first, directory) == sibling / Path(first.run_dir).parent / legacy.name
+
+
+# ----------------------------------------------------------------------------- identity 3
+@pytest.fixture
+def dnerf_scene(tmp_path) -> Path:
+    (tmp_path / "scene").mkdir()
+    (tmp_path / "scene" / "transforms_train.json").write_text("{}")
+    return tmp_path / "scene"
+
+
+@pytest.mark.parametrize(
+    ("args", "same"),
+    [(["--field", "sde"], ["--field", "sde", "--lambda", "0.05"]),
+     ([], ["--downscale", "1"]), (["--data-format", "dnerf"], ["--data-format", "dnerf", "--downscale", "1"]),
+     ([], ["--eval.lpips-weights", "weights"]),
+     (["--eval.lpips-weights", "/abs/weights"], ["--eval.lpips-weights", "w"]),
+     (["--field", "cfc"], ["--field", "cfc", "--lambda", "0"])],
+    ids=["sde lambda", "downscale", "downscale dnerf", "lpips weights", "lpips weights paths", "cfc lambda 0"],
+)  # fmt: skip
+def test_equal_settings_hash_equal(dnerf_scene, args, same):
+    """Before: each pair hashed apart, so equal runs were trained twice and not shared."""
+    a, _ = resolve_config(["--data", str(dnerf_scene), "--preset", "tiny", *args])
+    b, _ = resolve_config(["--data", str(dnerf_scene), "--preset", "tiny", *same])
+    assert config_hash(a) == config_hash(b) and differing_settings(a, b) == []
+
+
+def test_settings_that_differ_still_hash_apart(dnerf_scene, tmp_path):
+    base = ["--data", str(dnerf_scene), "--preset", "tiny"]
+    sde, _ = resolve_config([*base, "--field", "sde"])
+    assert config_hash(sde) != config_hash(resolve_config([*base, "--field", "sde", "--lambda", "0.1"])[0])
+    assert config_hash(resolve_config(base)[0]) != config_hash(resolve_config([*base, "--downscale", "2"])[0])
+    # a Nerfies split's default downscale is its own (vrig 4, interp 2): None and 1 stay apart there
+    nerfies = tmp_path / "nerfies"
+    nerfies.mkdir()
+    (nerfies / "dataset.json").write_text("{}")
+    one, _ = resolve_config(["--data", str(nerfies), "--downscale", "1"])
+    assert config_hash(one) != config_hash(resolve_config(["--data", str(nerfies)])[0])
+
+
+def test_identity_3_keeps_the_hash_of_every_config_already_normal(dnerf_scene):
+    """Built-in and experiment runs (lambda given, no weights path) keep their folders."""
+    for args in (["--field", "sde", "--lambda", "0.05"], ["--field", "mlp"], ["--downscale", "8", "--field", "cfc"]):
+        cfg, _ = resolve_config(["--data", str(dnerf_scene), "--preset", "tiny", *args])
+        assert config_hash(cfg) == _v2_hash(cfg)
+
+
+def _v2_hash(cfg) -> str:
+    import hashlib
+
+    return hashlib.sha256(json.dumps(identity_v2(cfg), sort_keys=True).encode()).hexdigest()[:10]
+
+
+def test_a_run_named_by_identity_2_is_found_by_train_and_experiments(tmp_path, monkeypatch, capsys):
+    """A finished run of a config that was not normal (here: a weights path) made under identity 2 is
+    found by the same config."""
+    monkeypatch.chdir(tmp_path)
+    text = (V1_RUN / "config.yml").read_text().replace("out: /tmp/legacy/runs/0de6fcb36b", "out: null")
+    config = tmp_path / "config.yml"
+    config.write_text(text.replace("lpips_weights: null", "lpips_weights: weights/alex.pth"))
+    old = load_yaml(config)
+    assert config_hash(old) != _v2_hash(old) and folder_names(old)[1] == _v2_hash(old)
+    parent = tmp_path / "outputs" / "dnerf" / "mlp"
+    folder = _copy_v1_run(parent).rename(parent / _v2_hash(old))
+    (folder / "config.yml").write_text(config.read_text())
+    assert cli(["train", "--config", str(config)]) == 0
+    assert f"{Path('outputs/dnerf/mlp') / folder.name}: already finished" in capsys.readouterr().err
+    assert run_folder(old, parent) == folder
+
+
+def test_an_sde_run_without_lambda_made_under_identity_2_keeps_its_folder(dnerf_scene, tmp_path):
+    """`train --field sde` stored lambda None: its hash changed (to the experiments' lambda 0.05 one)."""
+    cfg, _ = resolve_config(["--data", str(dnerf_scene), "--preset", "tiny", "--field", "sde"])
+    assert config_hash(cfg) != _v2_hash(cfg)
+    assert run_folder(cfg, tmp_path / "runs") == tmp_path / "runs" / config_hash(cfg)
+    (tmp_path / "runs" / _v2_hash(cfg)).mkdir(parents=True)
+    assert run_folder(cfg, tmp_path / "runs") == tmp_path / "runs" / _v2_hash(cfg)

@@ -202,7 +202,7 @@ def test_a_full_disk_during_a_checkpoint_says_so_and_keeps_the_last_one(scene, t
     monkeypatch.setattr(torch, "save", real_save)
     kept = torch.load(out / "checkpoint.pt", weights_only=True)
     assert kept["state"]["iteration"] == 10
-    assert sorted(p.name for p in out.iterdir()) == ["checkpoint.pt", "config.yml", "tensorboard"]
+    assert sorted(p.name for p in out.iterdir()) == ["checkpoint.pt", "config.yml", "scene.json", "tensorboard"]
 
 
 def test_read_only_file_system_is_one_line(scene, tmp_path, capsys, monkeypatch):

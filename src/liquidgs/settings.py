@@ -29,12 +29,42 @@ from pathlib import Path
 from typing import Any, Literal, TypeVar
 
 import tyro
+import yaml
 
 from liquidgs.errors import ConfigError
 
 T = TypeVar("T")
 
 _NONE_TEXT = "None"
+
+
+MAX_YAML_VALUES = 100_000
+"""Values a YAML file may hold once its aliases (*name) are expanded: a config or spec holds a few
+hundred; a few nested aliases (an "alias bomb") would expand to billions and hang every reader."""
+
+
+def load_yaml_file(path: Path, what: str):
+    """The plain values of a YAML file, or one error naming it: unreadable, or larger than
+    MAX_YAML_VALUES once its aliases are expanded (a self-referencing alias never ends)."""
+    try:
+        raw = yaml.safe_load(path.read_text())
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as err:
+        first = str(err).splitlines()[0] if str(err) else type(err).__name__
+        raise ConfigError(f"{path}: unreadable {what} ({first})") from None
+    pending, seen = [raw], 0
+    while pending:  # a walk with a budget, not recursion: a cycle or a bomb stops at the budget
+        value = pending.pop()
+        seen += 1
+        if seen > MAX_YAML_VALUES:
+            raise ConfigError(
+                f"{path}: {what} holds more than {MAX_YAML_VALUES:,} values once its aliases (*name) are "
+                "expanded, or an alias that contains itself"
+            )
+        if isinstance(value, dict):
+            pending += [*value.keys(), *value.values()]
+        elif isinstance(value, list):
+            pending += value
+    return raw
 
 
 def to_dict(obj) -> dict:

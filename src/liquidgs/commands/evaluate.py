@@ -27,7 +27,7 @@ from liquidgs.settings import parse_flags
 from liquidgs.train.camera_opt import aligned_render, alignment_protocol, refines
 from liquidgs.train.model import render_frame
 from liquidgs.train.run import load_run, load_run_dataset
-from liquidgs.train.run_folder import EVAL, EVAL_PER_VIEW, write_per_view
+from liquidgs.train.run_folder import EVAL, EVAL_PER_VIEW, check_scene_print, write_per_view
 
 
 @dataclass
@@ -52,6 +52,7 @@ def evaluate_run(args: EvalArgs) -> dict:
     backbone = args.lpips_backbone or cfg.eval.lpips_backbone
     normalize = cfg.eval.lpips_normalize if args.lpips_normalize is None else args.lpips_normalize
     quantize = cfg.eval.quantize_8bit if args.quantize_8bit is None else args.quantize_8bit
+    check_scene_print(args.run, cfg.data.path)
     dataset = load_run_dataset(cfg)
     if args.split not in dataset.splits:
         raise ConfigError(f"{cfg.data.path}: the dataset has no '{args.split}' split")

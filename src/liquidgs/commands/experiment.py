@@ -24,7 +24,7 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, Ti
 from liquidgs.errors import ConfigError
 from liquidgs.experiments import BUILTIN_SPECS, expand, generate_scenes, load_spec, read_manifest, write_manifest
 from liquidgs.experiments.estimate import estimate
-from liquidgs.experiments.plan import MANIFEST
+from liquidgs.experiments.plan import MANIFEST, check_same_experiment
 from liquidgs.experiments.runner import RunOutcome, finished_elsewhere, run_experiment
 from liquidgs.settings import parse_flags
 
@@ -69,6 +69,7 @@ def run(args: RunArgs, console: Console) -> int:
         raise ConfigError(f"--parallel must be >= 1, got {args.parallel}")
     spec = load_spec(args.spec)
     experiment = expand(spec, args.data_root, experiment_dir(spec.name, args.out))
+    unchanged = check_same_experiment(experiment)
     done = [r for r in experiment.runs if r.is_done(experiment.directory)]
     if args.dry_run:
         shared = 0
@@ -83,6 +84,11 @@ def run(args: RunArgs, console: Console) -> int:
         to_train = [e for e in experiment.runs if e not in done and finished_elsewhere(e, experiment.directory) is None]
         print(estimate(to_train).line(len(to_train)))
         return 0
+    if not unchanged and (experiment.directory / MANIFEST).is_file():
+        console.print(
+            f"note: spec '{spec.name}' changed since it last ran in {experiment.directory}; {MANIFEST} now lists "
+            "its new grids (runs no longer in them stay in their folders, out of its report)"
+        )
     write_manifest(experiment)
     for folder in generate_scenes(experiment):
         console.print(f"generated the built-in scene {folder}")

@@ -31,6 +31,7 @@ from liquidgs.media import depth_to_uint8, to_uint8, write_png, write_video
 from liquidgs.render.camera_path import CameraPath, read_camera_path
 from liquidgs.settings import parse_flags
 from liquidgs.train.run import TrainedRun, load_run, load_run_dataset
+from liquidgs.train.run_folder import check_scene_print
 
 MAX_FRAMES = 100_000
 
@@ -97,6 +98,7 @@ def render_run(args: RenderArgs, console: Console | None = None) -> dict[str, Pa
         console.print(f"[yellow]note:[/] {args.run}: {run.progress_label}")
     if args.uncertainty_samples and run.config.field != "sde":
         raise ConfigError(f"--uncertainty-samples needs a run of the 'sde' field; {args.run} used '{run.config.field}'")
+    check_scene_print(args.run, run.config.data.path)
     dataset = load_run_dataset(run.config)
     frames = dataset.test or dataset.train
     if not 0 <= args.sweep_camera < len(frames):

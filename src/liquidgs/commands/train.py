@@ -2,11 +2,14 @@
 
     liquidgs train --data PATH --field NAME [--preset NAME] [--lambda L]
                    [--iterations N] [--downscale K] [--seed S] [--out DIR] [--resume]
-    liquidgs train --config FILE [--out DIR] [--resume]
+    liquidgs train --config FILE [--out DIR]
+    liquidgs train --out DIR --resume [--iterations N]
 
 Every other setting of TrainConfig is a flag too (`liquidgs train --help`), with the
 preset's values as defaults. The resolved configuration is written to DIR/config.yml;
---config FILE trains such a configuration as it is (flags on top still apply).
+--config FILE trains such a configuration (flags on top still apply) in --out DIR, else in the
+default folder: the `out` and `resume` FILE holds are where and how its run was written, not
+settings. --resume continues the run in --out as its config.yml says (only --iterations may grow).
 """
 
 from __future__ import annotations
@@ -33,6 +36,7 @@ from liquidgs.train.run_folder import (
     read_results,
     run_folder_lock,
     stale_temporaries,
+    write_scene_print,
 )
 from liquidgs.train.trainer import Trainer
 
@@ -64,6 +68,11 @@ def resolve_config(argv: list[str]) -> tuple[TrainConfig, Path]:
     config_file, argv = config_file_argument(argv)
     flags = parse_flag_settings(TrainConfig, argv, "liquidgs train")
     out, stored = flags.get("out"), None
+    if flags.get("resume") and config_file is not None:
+        raise ConfigError(
+            f"{config_file}: --resume continues the run in --out as its own config.yml says; --config cannot "
+            "change it (to train this config, leave out --resume)"
+        )
     if flags.get("resume"):
         if out is None:
             raise ConfigError("--resume needs --out DIR, the run folder to continue")
@@ -73,7 +82,9 @@ def resolve_config(argv: list[str]) -> tuple[TrainConfig, Path]:
     elif config_file is not None:
         if not config_file.is_file():
             raise ConfigError(f"{config_file}: no such run configuration (--config)")
-        base = load_yaml(config_file)
+        # A run's `out` and `resume` say where and how that run was written, not what it computes:
+        # they do not carry over, so a changed config never continues (or overwrites) that run.
+        base = dataclasses.replace(load_yaml(config_file), out=None, resume=False)
     else:
         if "data.path" not in flags:
             raise ConfigError("--data PATH is required")
@@ -86,6 +97,8 @@ def resolve_config(argv: list[str]) -> tuple[TrainConfig, Path]:
                 f"{out / CONFIG}: --resume continues the run as configured; these settings differ: "
                 + ", ".join(changed)
             )
+    # The scene as an absolute path: config.yml names the same folder from any working directory.
+    cfg = dataclasses.replace(cfg, data=dataclasses.replace(cfg.data, path=cfg.data.path.resolve()))
     run_dir = cfg.out or default_run_dir(cfg)
     return dataclasses.replace(cfg, out=run_dir), run_dir
 
@@ -149,6 +162,7 @@ def train(cfg: TrainConfig, run_dir: Path, console: Console | None = None, datas
                 (run_dir / PER_VIEW).unlink(missing_ok=True)
                 console.print(f"extending the finished run to {cfg.iterations} iterations; removed its {RESULTS}")
             console.print(f"resuming {run_dir} at iteration {trainer.state.iteration}")
+        write_scene_print(run_dir, cfg.data.path)
         try:
             with make_progress(console) as progress:
                 results = trainer.run(progress)

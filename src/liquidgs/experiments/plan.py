@@ -19,7 +19,7 @@ from liquidgs.atomic import write_json_atomic
 from liquidgs.data import DataConfig, generate_synthetic
 from liquidgs.errors import ConfigError, LiquidGSError
 from liquidgs.experiments.spec import ExperimentSpec, Grid, SyntheticScene, Variant
-from liquidgs.train.config import TrainConfig, from_dict, preset_config, run_folder
+from liquidgs.train.config import TrainConfig, differing_settings, from_dict, preset_config, run_folder
 from liquidgs.train.run_folder import RESULTS
 
 MANIFEST = "experiment.json"
@@ -138,12 +138,41 @@ def _field_settings(variant: Variant) -> dict:
     return {"field": variant.field, **({"lambda_": variant.lambda_} if variant.field == "sde" else {})}
 
 
+# The settings a grid's own keys (or the experiment) set for each run: an override may not set
+# them, or a row would be labelled with one value and trained with another.
+AXIS_SETTINGS = {
+    "data.path": "'scenes'",
+    "field": "'fields' or a variant's 'field'",
+    "lambda_": "'lambdas' or a variant's 'lambda'",
+    "seed": "'seeds'",
+    "preset": "'preset'",
+    "out": "the experiment (--out)",
+    "resume": "the experiment (runs resume by themselves)",
+}
+
+
+def _check_axes(grid: Grid, where: str, overrides: dict, source: str) -> None:
+    """Refuse an override of a setting that a grid axis owns (AXIS_SETTINGS, and each perturbation
+    the grid's 'perturb' sweeps)."""
+    owned = {**AXIS_SETTINGS, **{f"perturb.{kind}": f"'perturb.{kind}'" for kind, _ in grid.perturb}}
+    for key in overrides:
+        try:
+            dotted = next(iter(settings.setting_keys(TrainConfig, {key: None})))
+        except ConfigError:
+            continue  # an unknown setting: named by the checks that follow
+        if dotted in owned:
+            raise ConfigError(f"{source}: {where}.{key} sets what the grid's {owned[dotted]} set for each run; "
+                              f"give it there")  # fmt: skip
+
+
 def _check_overrides(grid: Grid, data: Path, source: str) -> None:
     """Every override mapping with the field it is for. When one fails, the error names the
     first key that fails alone; settings that only fail together are named as their mapping."""
     variants = grid.field_variants()
     checks = [("overrides", variants[0], grid.overrides)]
     checks += [(f"variants.{v.label}.overrides", v, v.overrides) for v in variants]
+    for where, _, overrides in checks:
+        _check_axes(grid, where, overrides, source)
     for where, variant, overrides in checks:
         base = _field_settings(variant)
         try:
@@ -162,6 +191,7 @@ def expand(spec: ExperimentSpec, data_root: str | Path, directory: str | Path) -
     if not data_root.is_dir():
         raise ConfigError(f"{data_root}: --data-root is not a folder")
     runs: list[RunEntry] = []
+    grid_of: list[str] = []  # the grid each run comes from, as errors name it
     synthetic: dict[SyntheticScene, Path] = {}
     for g, grid in enumerate(spec.grids):
         source = f"spec '{spec.name}'" + (f" grids[{g}]" if len(spec.grids) > 1 else "")
@@ -189,11 +219,23 @@ def expand(spec: ExperimentSpec, data_root: str | Path, directory: str | Path) -
                                      str(folders[scene]), run_dir.as_posix(), settings.to_dict(cfg), variant.name,
                                      perturb, strength)  # fmt: skip
                         )
+                        grid_of.append(source)
     seen: dict[str, RunEntry] = {}
-    for run in runs:
+    named: dict[str, tuple[RunEntry, str]] = {}
+    for run, grid in zip(runs, grid_of):
         if run.run_dir in seen:
             raise ConfigError(f"spec '{spec.name}': {run.name} and {seen[run.run_dir].name} are the same run")
         seen[run.run_dir] = run
+        # A run's name labels its log, its config file and its report row: one name, one run.
+        if run.name in named:
+            other, other_grid = named[run.name]
+            changed = ", ".join(differing_settings(other.train_config(), run.train_config()))
+            grids = other_grid if other_grid == grid else f"{other_grid} and {grid.rpartition(' ')[2]}"
+            raise ConfigError(
+                f"{grids}: two runs are named {run.name} but differ in {changed}; give the grids different "
+                "'dataset' labels, or name the field configurations as variants"
+            )
+        named[run.name] = (run, grid)
     return Experiment(
         spec.to_dict(), str(data_root.resolve()), Path(directory), tuple(runs), tuple(synthetic.items())
     )
@@ -214,6 +256,22 @@ def write_manifest(experiment: Experiment) -> Path:
             "runs": [asdict(r) for r in experiment.runs],
         },
     )
+
+
+def check_same_experiment(experiment: Experiment) -> bool:
+    """Refuse a folder that holds another spec's experiment (its experiment.json would be replaced
+    and its runs would leave its report). Returns whether the folder holds this spec as it was
+    last run (False: a new folder, or this spec's name with other grids)."""
+    if not (experiment.directory / MANIFEST).is_file():
+        return False
+    existing = read_manifest(experiment.directory)
+    name = existing.spec.get("name") if isinstance(existing.spec, dict) else None
+    if name != experiment.spec["name"]:
+        raise ConfigError(
+            f"{experiment.directory}: holds the experiment '{name}', not '{experiment.spec['name']}'; "
+            "choose another --out"
+        )
+    return json.loads(json.dumps(experiment.spec)) == existing.spec
 
 
 def read_manifest(directory: str | Path) -> Experiment:

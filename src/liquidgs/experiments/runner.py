@@ -14,6 +14,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Callable, Iterable
 from concurrent.futures import ThreadPoolExecutor, as_completed
@@ -23,7 +24,7 @@ from queue import Queue
 
 from liquidgs.errors import ConfigError
 from liquidgs.experiments.plan import Experiment, RunEntry
-from liquidgs.train.config import legacy_config_hash, save_yaml
+from liquidgs.train.config import folder_names, save_yaml
 from liquidgs.train.run_folder import CHECKPOINT, RESULTS
 
 LOGS = "logs"
@@ -74,6 +75,12 @@ def _last_line(path: Path) -> str:
     return lines[-1][:300] if lines else ""
 
 
+# The trainings this process started and waits for: Ctrl-C reaches each (run_local), also when
+# only this process got it (a kill -INT of its PID), so each ends with a checkpoint to resume.
+_RUNNING: set[subprocess.Popen] = set()
+_RUNNING_LOCK = threading.Lock()
+
+
 def execute_run(entry: RunEntry, experiment_dir: str, env: dict[str, str] | None = None) -> RunOutcome:
     """Train one run to completion (or find it done); never raises for a failed training."""
     experiment_dir = Path(experiment_dir)
@@ -86,7 +93,7 @@ def execute_run(entry: RunEntry, experiment_dir: str, env: dict[str, str] | None
     with open(log, "a") as stream:
         stream.write(f"$ {' '.join(command)}\n")
         stream.flush()
-        code = subprocess.call(
+        process = subprocess.Popen(
             command,
             stdout=stream,
             stderr=subprocess.STDOUT,
@@ -94,6 +101,13 @@ def execute_run(entry: RunEntry, experiment_dir: str, env: dict[str, str] | None
             env={**os.environ, **(env or {}), "PYTHONUNBUFFERED": "1"},
             preexec_fn=_die_with_parent if sys.platform.startswith("linux") else None,
         )
+        with _RUNNING_LOCK:
+            _RUNNING.add(process)
+        try:
+            code = process.wait()
+        finally:
+            with _RUNNING_LOCK:
+                _RUNNING.discard(process)
     seconds = time.perf_counter() - started
     if code == 0 and entry.is_done(experiment_dir):
         return RunOutcome(entry.name, "done", seconds, str(log))
@@ -127,25 +141,43 @@ def _slot_environments(parallel: int) -> list[dict[str, str]]:
 
 
 def run_local(
-    runs: Iterable[RunEntry], experiment_dir: Path, parallel: int, on_outcome: Callable[[RunOutcome], None]
+    runs: list[RunEntry], experiment_dir: Path, parallel: int, on_outcome: Callable[[RunOutcome], None]
 ) -> list[RunOutcome]:
     """Subprocesses, `parallel` at a time, each slot with its own GPU (or share of the CPU cores)."""
     slots: Queue[dict[str, str]] = Queue()
     for env in _slot_environments(parallel):
         slots.put(env)
 
-    def in_slot(entry: RunEntry) -> RunOutcome:
+    interrupted = threading.Event()
+    started: list[str] = []
+
+    def in_slot(entry: RunEntry) -> RunOutcome | None:
         env = slots.get()
         try:
+            if interrupted.is_set():  # Ctrl-C: no new run starts
+                return None
+            started.append(entry.name)
             return execute_run(entry, str(experiment_dir), env)
         finally:
             slots.put(env)
 
-    outcomes = []
+    outcomes: list[RunOutcome] = []
     with ThreadPoolExecutor(max_workers=parallel) as pool:
-        for future in as_completed([pool.submit(in_slot, entry) for entry in runs]):
-            outcomes.append(future.result())
-            on_outcome(outcomes[-1])
+        try:
+            for future in as_completed([pool.submit(in_slot, entry) for entry in runs]):
+                outcomes.append(future.result())
+                on_outcome(outcomes[-1])
+        except KeyboardInterrupt:
+            interrupted.set()  # before anything else: a slot freed now starts nothing
+            pool.shutdown(wait=False, cancel_futures=True)
+            with _RUNNING_LOCK:
+                for process in _RUNNING:
+                    with contextlib.suppress(OSError):
+                        process.send_signal(signal.SIGINT)
+            pool.shutdown(wait=True)
+            raise KeyboardInterrupt(
+                f"{len(runs) - len(started)} of {len(runs)} runs not started; the same command resumes the experiment"
+            ) from None
     return outcomes
 
 
@@ -212,8 +244,8 @@ def finished_elsewhere(entry: RunEntry, experiment_dir: Path) -> Path | None:
         return None
     siblings = [p for p in sorted(directory.parent.iterdir()) if p.is_dir() and p.resolve() != directory.resolve()]
     names = [Path(entry.run_dir)]
-    if entry.config is not None:  # a sibling made before config identity 2 holds it under its version-1 hash
-        names.append(names[0].parent / legacy_config_hash(entry.train_config()))
+    if entry.config is not None:  # a sibling made before config identity 3 holds it under an older hash
+        names += [names[0].parent / name for name in folder_names(entry.train_config())]
     return next((p / name for p in siblings for name in names if (p / name / RESULTS).is_file()), None)
 
 

@@ -36,8 +36,6 @@ import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import yaml
-
 from liquidgs import settings
 from liquidgs.data import SYNTHETIC_SCENES, PerturbConfig
 from liquidgs.errors import ConfigError
@@ -337,6 +335,11 @@ BUILTIN_SPECS["stress-mini"] = ExperimentSpec(
 )
 
 
+def _folder_safe(value) -> bool:
+    """A name that is one folder under the experiment's: no '/', not '.', '..' or hidden."""
+    return isinstance(value, str) and bool(value) and not {"/", "\\"} & set(value) and not value.startswith(".")
+
+
 def _as_tuple(value, key: str, source: str, kind) -> tuple:
     """One value or a list of them, each checked as a setting of type `kind` is (settings.matches)."""
     values = value if isinstance(value, (list, tuple)) else [value]
@@ -377,7 +380,7 @@ def _variants(raw, source: str) -> tuple[Variant, ...]:
     variants = []
     for name, body in raw.items():
         where = f"variants.{name}"
-        if not isinstance(name, str) or not name or "/" in name or name.startswith("."):
+        if not _folder_safe(name):
             raise ConfigError(f"{source}: variant names must be non-empty folder-safe strings, got {name!r}")
         if not isinstance(body, dict) or "field" not in body:
             raise ConfigError(f"{source}: '{where}' must be a mapping with a 'field'")
@@ -433,9 +436,14 @@ def _grid(raw: dict, source: str) -> Grid:
         raise ConfigError(f"{source}: 'seeds' must be >= 0, got {list(seeds)}")
     scenes = _as_tuple(raw["scenes"], "scenes", source, str)
     for scene in scenes:
-        SyntheticScene.parse(scene, source)
+        # Each scene names a folder of the experiment's (its runs are written under it).
+        if SyntheticScene.parse(scene, source) is None and not _folder_safe(scene):
+            raise ConfigError(f"{source}: 'scenes' must hold folder names under --data-root, got {scene!r}")
+    dataset = raw.get("dataset", preset)
+    if not _folder_safe(dataset):
+        raise ConfigError(f"{source}: 'dataset' must be a non-empty folder-safe string, got {dataset!r}")
     return Grid(
-        dataset=str(raw.get("dataset", preset)),
+        dataset=dataset,
         preset=preset,
         scenes=scenes,
         fields=fields,
@@ -466,7 +474,7 @@ def spec_from_dict(raw, source: str) -> ExperimentSpec:
     if unknown:
         raise ConfigError(f"{source}: unknown key '{unknown[0]}' (known: {', '.join(SPEC_KEYS)})")
     name = raw.get("name")
-    if not isinstance(name, str) or not name or "/" in name or name.startswith("."):
+    if not _folder_safe(name):
         raise ConfigError(f"{source}: 'name' must be a non-empty folder-safe string, got {name!r}")
     defaults = {k: raw[k] for k in GRID_KEYS if k in raw}
     if "grids" in raw:
@@ -496,9 +504,5 @@ def load_spec(name_or_path: str | Path) -> ExperimentSpec:
         raise ConfigError(
             f"{key}: no such spec file, and not a built-in spec (built-in: {', '.join(BUILTIN_SPECS)})"
         )
-    try:
-        raw = yaml.safe_load(path.read_text())
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as err:
-        first = str(err).splitlines()[0] if str(err) else type(err).__name__
-        raise ConfigError(f"{path}: unreadable spec ({first})") from None
+    raw = settings.load_yaml_file(path, "spec")
     return spec_from_dict(raw, str(path))

@@ -26,6 +26,7 @@ from liquidgs.fields.config import (
     PRESET_NAMES,
     PresetName,
     check_choice,
+    default_lambda,
     field_options_class,
     own_option_flags,
 )
@@ -310,15 +311,20 @@ def validate(cfg: TrainConfig) -> None:
 # Settings that change where or how a run executes, not what it computes.
 _NOT_IDENTITY = ("out", "resume", "device", "backend", "checkpoint_every", "data.cache_images")
 
-IDENTITY_VERSION = 2
-"""Version 2 (this code): every setting that changes what a run computes, as config.yml holds
-it, with the scene path resolved and "identity": 2. Version 1 (before the data settings were
-grouped under `data`) is legacy_identity's; run folders named by it are still found."""
+IDENTITY_VERSION = 3
+"""Version 3 (this code): version 2's settings with each written one way (normal_identity), so
+equal settings hash equal. Version 2: every setting that changes what a run computes, as
+config.yml holds it, with the scene path resolved and "identity": 2. A config already in normal
+form has the same hash in both (the dict keeps the marker 2), so only the folders of configs that
+were not are renamed, and run_folder still finds those. Version 1 (before the data settings were
+grouped under `data`) is legacy_identity's; run folders named by it are still found too."""
+_IDENTITY_MARKER = 2
+"""The version the hashed dict carries: version 3 changed no layout, only how settings are written."""
 
 
-def identity(cfg: TrainConfig) -> dict:
-    """What a run computes from. A setting added later must not change the identity of runs made
-    without it: leave it out at the value those runs had (and test that)."""
+def identity_v2(cfg: TrainConfig) -> dict:
+    """What a run computes from, as version 2 wrote it. A setting added later must not change the
+    identity of runs made without it: leave it out at the value those runs had (and test that)."""
     d = to_dict(cfg)
     for dotted in _NOT_IDENTITY:
         *groups, last = dotted.split(".")
@@ -344,7 +350,29 @@ def identity(cfg: TrainConfig) -> dict:
     else:
         del d["motion"]
     d["data"]["path"] = str(Path(d["data"]["path"]).resolve())
-    d["identity"] = IDENTITY_VERSION
+    d["identity"] = _IDENTITY_MARKER
+    return d
+
+
+def _reads_as_dnerf(data: DataConfig) -> bool:
+    path = data.path
+    detected = (path / "transforms_train.json").is_file() and not (path / "dataset.json").is_file()
+    return data.format == "dnerf" or (data.format == "auto" and detected)
+
+
+def identity(cfg: TrainConfig) -> dict:
+    """Version 3: version 2's with equal settings written one way - the form experiments write:
+    - the LPIPS weights file: where the evaluation finds the published weights, not what the
+      run computes (None, as when found through $LIQUIDGS_LPIPS_WEIGHTS);
+    - lambda: the resolved noise level of a field that has one by default ('sde': None -> 0.05),
+      None for the others (0 is their only value);
+    - data.downscale of a D-NeRF scene: None for 1 (the reader's default; a Nerfies split's
+      default depends on the split, so its None stays apart)."""
+    d = identity_v2(cfg)
+    d["eval"]["lpips_weights"] = None
+    d["lambda_"] = cfg.resolved_lambda() if default_lambda(cfg.field) else None
+    if d["data"]["downscale"] == 1 and _reads_as_dnerf(cfg.data):
+        d["data"]["downscale"] = None
     return d
 
 
@@ -368,7 +396,7 @@ _V1_SPLIT_SCALE_DIVISOR = 1.6
 
 def legacy_identity(cfg: TrainConfig) -> dict:
     """The version-1 identity, whose hash named the run folders of liquidgs before version 2."""
-    d = identity(cfg)
+    d = identity_v2(cfg)
     del d["identity"]
     data = d.pop("data")
     d.update({v1: data[key] for key, v1 in _V1_DATA_KEYS.items()})
@@ -399,12 +427,17 @@ def upgrade_v1(raw: dict) -> dict:
     return raw
 
 
+def folder_names(cfg: TrainConfig) -> list[str]:
+    """The names a run folder of this config may have: its hash, then those of the versions
+    before (2, 1), where they differ."""
+    return list(dict.fromkeys([config_hash(cfg), _hash(identity_v2(cfg)), legacy_config_hash(cfg)]))
+
+
 def run_folder(cfg: TrainConfig, parent: Path) -> Path:
-    """The folder under `parent` for this run: named by its config hash, or by its version-1 hash
-    where a run made before version 2 is there."""
-    current = Path(parent) / config_hash(cfg)
-    legacy = Path(parent) / legacy_config_hash(cfg)
-    return legacy if not current.exists() and legacy.exists() else current
+    """The folder under `parent` for this run: named by its config hash, or by an older version's
+    hash where a run made then is there."""
+    names = folder_names(cfg)
+    return next((Path(parent) / name for name in names if (Path(parent) / name).exists()), Path(parent) / names[0])
 
 
 def differing_settings(a: TrainConfig, b: TrainConfig) -> list[str]:
@@ -423,10 +456,7 @@ def save_yaml(cfg: TrainConfig, path: Path) -> None:
 
 
 def load_yaml(path: Path) -> TrainConfig:
-    try:
-        raw = yaml.safe_load(path.read_text())
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as err:
-        raise ConfigError(f"{path}: unreadable run config ({type(err).__name__})") from None
+    raw = settings.load_yaml_file(path, "run config")
     if not isinstance(raw, dict) or "data" not in raw:
         raise ConfigError(f"{path}: not a liquidgs run config (no 'data')")
     check_recorded_field(raw.get("field"), raw.pop(FIELD_PACKAGE, None), path)

@@ -1,7 +1,8 @@
 """A run folder: what `liquidgs train` writes, and what eval, render, export, the viewer and the
 experiments read. Readers import this package, never the training loop.
 
-    config.yml        the resolved configuration (written first)
+    config.yml        the resolved configuration (written first), its scene path absolute
+    scene.json        the scene's files, so a changed scene is refused (scene_print.py)
     checkpoint.pt     the latest checkpoint (CHECKPOINT_FORMAT)
     per_view.json     each test view's scores at the last iteration
     results.json      RunResults (RESULTS_FORMAT), written last: the run's only "done" marker
@@ -23,6 +24,7 @@ from liquidgs.train.run_folder.layout import (
     LOCK_NAME,
     PER_VIEW,
     RESULTS,
+    SCENE_PRINT,
     TENSORBOARD,
     run_directory_state,
     stale_temporaries,
@@ -40,6 +42,7 @@ from liquidgs.train.run_folder.records import (
     write_results,
 )
 from liquidgs.train.run_folder.rules import check_resume_progress, check_run_dir
+from liquidgs.train.run_folder.scene_print import check_scene_print, scene_print, write_scene_print
 
 __all__ = [
     "CAMERAS_REFINED",
@@ -52,18 +55,22 @@ __all__ = [
     "PER_VIEW",
     "RESULTS",
     "RESULTS_FORMAT",
+    "SCENE_PRINT",
     "TENSORBOARD",
     "RunResults",
     "check_results_format",
     "check_resume_progress",
     "check_run_dir",
+    "check_scene_print",
     "read_checkpoint",
     "read_results",
     "run_directory_state",
     "run_folder_lock",
+    "scene_print",
     "stale_temporaries",
     "write_checkpoint",
     "write_per_view",
     "write_results",
+    "write_scene_print",
     "writer_pid",
 ]

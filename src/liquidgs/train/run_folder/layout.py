@@ -13,7 +13,9 @@ RESULTS = "results.json"
 """Written last: the run's only "done" marker."""
 CAMERAS_REFINED = "cameras_refined.json"
 """How far camera refinement moved each training camera (with each checkpoint of a run that refines)."""
-RUN_FILES = (CONFIG, CHECKPOINT, PER_VIEW, RESULTS, CAMERAS_REFINED)
+SCENE_PRINT = "scene.json"
+"""The files of the scene the run trains on (run_folder.scene_print); absent in older runs."""
+RUN_FILES = (CONFIG, SCENE_PRINT, CHECKPOINT, PER_VIEW, RESULTS, CAMERAS_REFINED)
 """What the trainer writes into a run folder (besides TENSORBOARD), each atomically."""
 TENSORBOARD = "tensorboard"
 EVAL = "eval.json"
@@ -29,14 +31,14 @@ def stale_temporaries(run_dir: Path) -> list[Path]:
 
 
 def run_directory_state(run_dir: Path) -> str:
-    """'empty' (absent, or holding only a lock / stale temporaries), 'configured'
+    """'empty' (absent, or holding only a lock / stale temporaries / the scene print), 'configured'
     (config.yml, no checkpoint yet), 'unfinished' (a checkpoint, no results.json), 'finished' or
     'foreign' (anything else, including a file where the folder should be)."""
     if not run_dir.exists():
         return "empty"
     if not run_dir.is_dir():
         return "foreign"
-    leftovers = {LOCK_NAME, *(tmp.name for tmp in stale_temporaries(run_dir))}
+    leftovers = {LOCK_NAME, SCENE_PRINT, *(tmp.name for tmp in stale_temporaries(run_dir))}
     if all(entry.name in leftovers for entry in run_dir.iterdir()):
         return "empty"
     if not (run_dir / CONFIG).is_file():

@@ -7,6 +7,7 @@ from pathlib import Path
 from liquidgs.errors import ConfigError
 from liquidgs.train.config import TrainConfig, differing_settings, load_yaml
 from liquidgs.train.run_folder.layout import CONFIG, run_directory_state
+from liquidgs.train.run_folder.scene_print import check_scene_print
 
 
 def check_run_dir(cfg: TrainConfig, run_dir: Path) -> str:
@@ -15,6 +16,8 @@ def check_run_dir(cfg: TrainConfig, run_dir: Path) -> str:
     if state == "foreign":
         what = "is not empty and holds no liquidgs run" if run_dir.is_dir() else "is a file, not a folder"
         raise ConfigError(f"{run_dir}: output folder {what}; nothing was written")
+    if state != "empty":
+        check_scene_print(run_dir, cfg.data.path)
     if state in ("finished", "unfinished", "configured") and not cfg.resume:
         changed = differing_settings(cfg, load_yaml(run_dir / CONFIG))
         if changed:
