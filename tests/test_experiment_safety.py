@@ -112,10 +112,14 @@ def test_the_same_spec_with_more_runs_updates_its_folder_with_a_note(tmp_path, c
     assert len(json.loads((out / "experiment.json").read_text())["runs"]) == 2
 
 
-def test_ctrl_c_stops_an_experiment_no_new_run_starts(tmp_path, capsys, monkeypatch):
+def test_ctrl_c_stops_an_experiment_no_new_run_starts(tmp_path, capsys, monkeypatch, request):
     """Before: the current training stopped, then every remaining run was started before exit 130."""
     calls: list = []
     monkeypatch.setattr(runner, "execute_run", _fake_training(calls, interrupt_at=1))
+    # Python raises KeyboardInterrupt on SIGINT only if SIGINT was not ignored when it started, and a
+    # background job of a non-interactive shell (a CI runner's, say) starts with it ignored.
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    request.addfinalizer(lambda: signal.signal(signal.SIGINT, previous))
     spec = _spec_file(tmp_path, seeds=(0, 1, 2, 3))
     argv = ["experiment", "run", str(spec), "--data-root", str(tmp_path / "data"), "--out", str(tmp_path / "out")]
     assert cli([*argv, "--parallel", "1"]) == 130
