@@ -19,7 +19,7 @@ from typing import Any, Literal
 
 from liquidgs.errors import ConfigError
 from liquidgs.fields.presets import FAMILY_SIZES, PRESET_NAMES, PRESETS
-from liquidgs.fields.registry import field_type
+from liquidgs.fields.registry import field_type, install_options_check
 
 PresetName = Literal[PRESET_NAMES]  # type: ignore[valid-type]
 ACTIVATIONS = ("silu", "relu", "tanh", "gelu", "lecun_tanh")
@@ -253,6 +253,9 @@ def check_options_class(name: str, options: type) -> None:
             raise ConfigError(f"{where}: type {hints[f.name]} is not one settings read ({SETTING_TYPES})") from None
         if not fits:
             raise ConfigError(f"{where}: default {default!r} is not {settings.describe(hints[f.name])}")
+
+
+install_options_check(check_options_class)
 
 
 @functools.cache

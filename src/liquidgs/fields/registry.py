@@ -130,6 +130,21 @@ def installed_plugins() -> list[Plugin]:
     ]
 
 
+def _options_unchecked(name: str, options: type) -> None:
+    raise ConfigError(f"field '{name}': options cannot be checked before liquidgs.fields.config is imported")
+
+
+_options_check: Callable[[str, type], None] = _options_unchecked
+
+
+def install_options_check(check: Callable[[str, type], None]) -> None:
+    """How a field's options class is checked at registration (raises ConfigError): installed by
+    fields/config.py, which owns the settings the options must fit, so that this registry imports
+    nothing above it."""
+    global _options_check
+    _options_check = check
+
+
 class FieldRegistry:
     """The registered fields, filled on first read from the built-ins and `list_plugins()`."""
 
@@ -175,9 +190,7 @@ class FieldRegistry:
         ):
             raise ConfigError(f"field '{name}': default_lambda must be a finite number >= 0, got {default_lambda!r}")
         if options is not None:
-            from liquidgs.fields.config import check_options_class  # config reads this registry
-
-            check_options_class(name, options)
+            _options_check(name, options)
         new = FieldType(name, factory, label or name, presets, family, package, version, options, default_lambda)
         if name in self._conflicts:
             return
