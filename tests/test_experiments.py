@@ -127,6 +127,15 @@ def test_an_sde_row_at_lambda_0_beside_the_cfc_row_is_trained_once(data_root, tm
     assert "3 runs (0 done, 1 the same run as another row (SDE at lambda 0 = CfC), trained once)" in out
     assert "GPU-time estimate for the 2 runs to train" in out
     assert "twin    the same run as tiny-puppet-cfc-s0 (trained once)" in out
+    # run: one training for the two rows, each row with its outcome, the report reading both
+    pair = expand(spec_from_dict(small_spec("pair", scenes=["puppet"], fields=["cfc", "sde"], lambdas=[0.0]), "t"),
+                  data_root, tmp_path / "pair")  # fmt: skip
+    write_manifest(pair)
+    outcomes = {o.name: o for o in run_experiment(pair, parallel=1)}
+    assert [o.status for o in outcomes.values()] == ["done", "done"]
+    assert outcomes["tiny-puppet-sde-l0-s0"].message == "the same run as tiny-puppet-cfc-s0: trained once"
+    assert len(list((tmp_path / "pair").rglob("results.json"))) == 1
+    assert "2 of 2 planned runs finished" in write_report(tmp_path / "pair").read_text()
     # a setting only the sde field takes keeps lambda 0 an sde run of its own
     ou = spec_from_dict(small_spec("ou", scenes=["puppet"], fields=["sde"], lambdas=[0.0],
                                    overrides={**FAST, "field_options.noise": "ou"}), "t")  # fmt: skip
