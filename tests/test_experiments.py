@@ -93,6 +93,56 @@ def test_paper_tables_and_noise_study_lambda_0_05_are_the_same_runs(tmp_path):
         assert {r.run_dir for r in paper.runs} < {r.run_dir for r in spread.runs}  # seed 0 shared too
 
 
+def test_noise_studys_lambda_0_row_is_the_cfc_runs_trained_once(tmp_path, capsys):
+    """The SDE at lambda 0 is the CfC bit for bit: noise-study plans its lambda 0 row as paper-dnerf's and
+    paper-nerfds' CfC runs, so with those finished its dry run has 15 runs fewer to train."""
+    root = tmp_path / "data"
+    for dataset, scenes in (("dnerf", DNERF_SCENES), ("nerfds", NERFDS_SCENES)):
+        for scene in scenes:
+            (root / dataset / scene).mkdir(parents=True)
+    noise = expand(BUILTIN_SPECS["noise-study"], root, tmp_path / "exp" / "noise-study")
+    zero = [r for r in noise.runs if r.lambda_ == 0]
+    assert len(zero) == 15 and all(r.field == "sde" and r.trained_field == "cfc" for r in zero)
+    for dataset in ("dnerf", "nerfds"):
+        paper = expand(BUILTIN_SPECS[f"paper-{dataset}"], root / dataset, tmp_path / "exp" / f"paper-{dataset}")
+        cfc = [r for r in paper.runs if r.field == "cfc"]
+        assert {r.run_dir for r in cfc} == {r.run_dir for r in zero if r.dataset == dataset}
+        for run in cfc:  # finished, as far as sharing is concerned
+            run.folder(paper.directory).mkdir(parents=True)
+            (run.folder(paper.directory) / "results.json").write_text("{}")
+    out_dir = tmp_path / "exp" / "noise-study"
+    args = ["experiment", "run", "noise-study", "--data-root", str(root), "--out", str(out_dir)]
+    assert cli_main([*args, "--dry-run"]) == 0
+    out = capsys.readouterr().out
+    assert "60 runs (0 done, 15 finished in another experiment, to be shared)" in out
+    assert "GPU-time estimate for the 45 runs to train" in out
+
+
+def test_an_sde_row_at_lambda_0_beside_the_cfc_row_is_trained_once(data_root, tmp_path, capsys):
+    spec = write_spec(tmp_path / "s.yml", small_spec("twins", scenes=["puppet"], fields=["cfc", "sde"],
+                                                     lambdas=[0.0, 0.05]))  # fmt: skip
+    args = ["experiment", "run", str(spec), "--data-root", str(data_root), "--out", str(tmp_path / "e")]
+    assert cli_main([*args, "--dry-run"]) == 0
+    out = capsys.readouterr().out
+    assert "3 runs (0 done, 1 the same run as another row (SDE at lambda 0 = CfC), trained once)" in out
+    assert "GPU-time estimate for the 2 runs to train" in out
+    assert "twin    the same run as tiny-puppet-cfc-s0 (trained once)" in out
+    # run: one training for the two rows, each row with its outcome, the report reading both
+    pair = expand(spec_from_dict(small_spec("pair", scenes=["puppet"], fields=["cfc", "sde"], lambdas=[0.0]), "t"),
+                  data_root, tmp_path / "pair")  # fmt: skip
+    write_manifest(pair)
+    outcomes = {o.name: o for o in run_experiment(pair, parallel=1)}
+    assert [o.status for o in outcomes.values()] == ["done", "done"]
+    assert outcomes["tiny-puppet-sde-l0-s0"].message == "the same run as tiny-puppet-cfc-s0: trained once"
+    assert len(list((tmp_path / "pair").rglob("results.json"))) == 1
+    assert "2 of 2 planned runs finished" in write_report(tmp_path / "pair").read_text()
+    # a setting only the sde field takes keeps lambda 0 an sde run of its own
+    ou = spec_from_dict(small_spec("ou", scenes=["puppet"], fields=["sde"], lambdas=[0.0],
+                                   overrides={**FAST, "field_options.noise": "ou"}), "t")  # fmt: skip
+    [run] = expand(ou, data_root, tmp_path / "ou").runs
+    assert run.trained_field == "sde" and "/sde/" in run.run_dir
+
+
 def test_a_run_finished_in_a_sibling_experiment_is_shared_not_retrained(data_root, tmp_path, capsys):
     experiments = tmp_path / "experiments"
     first = expand(spec_from_dict(small_spec("first", scenes=["puppet"]), "t"), data_root, experiments / "first")
@@ -210,7 +260,10 @@ def test_grid_expansion_counts_and_folders(data_root, tmp_path):
     # 2 scenes x (mlp + cfc + sde at 2 lambdas) x 2 seeds
     assert len(experiment.runs) == 2 * 4 * 2
     folders = [r.run_dir for r in experiment.runs]
-    assert len(set(folders)) == len(folders)
+    # sde at lambda 0 is the CfC bit for bit: its rows are the cfc rows' folders (plan.cfc_twin)
+    assert len(set(folders)) == 2 * 3 * 2
+    twins = {r.run_dir for r in experiment.runs if r.field == "sde" and r.lambda_ == 0}
+    assert twins == {r.run_dir for r in experiment.runs if r.field == "cfc"}
     again = expand(spec, data_root, tmp_path / "exp")
     assert [r.run_dir for r in again.runs] == folders
     sde = [r for r in experiment.runs if r.field == "sde"]

@@ -325,6 +325,34 @@ def test_seeds_are_aggregated_as_mean_and_std_and_the_noise_study_is_built(hand_
     assert f"{statistics.mean(hook_mlp) + 0.5:.2f} ± {statistics.stdev(hook_mlp):.2f}" in best_of
 
 
+def test_the_noise_studys_lambda_0_row_is_read_from_the_cfc_runs(tmp_path):
+    """An SDE row at lambda 0 planned as the CfC's run (plan.cfc_twin): one folder, two rows, and the
+    noise study's lambda 0 row labelled as the CfC's."""
+    directory, data = tmp_path / "exp", tmp_path / "data"
+    data.mkdir()
+    runs = []
+    for scene in ("hook", "lego"):
+        for field, lam in (("cfc", 0.0), ("sde", 0.0), ("sde", 0.05), ("sde", 0.1)):
+            trained = "cfc" if lam == 0 else field
+            run_dir = f"dnerf/{scene}/{trained}/l{lam}"
+            runs.append(RunEntry("dnerf", scene, field, lam, 0, "tiny", str(data), run_dir, {"field": trained}))
+            if field == "sde" and lam == 0:
+                continue  # the CfC's folder, written for its row
+            cfg = preset_config("tiny", data)
+            cfg.field, cfg.lambda_ = trained, (lam if trained == "sde" else None)
+            save_yaml(cfg, directory / run_dir / "config.yml")
+            psnr = fake_psnr(scene, "sde", lam, 0)
+            (directory / run_dir / "results.json").write_text(json.dumps(fake_results(psnr, 0.9, 0.1)))
+    write_manifest(Experiment({"name": "shared"}, str(data), directory, tuple(runs)))
+    text = write_report(directory).read_text()
+    assert "8 of 8 planned runs finished" in text
+    noise = text.split("## Noise study")[1].split("##")[0]
+    mean_0 = statistics.mean(fake_psnr(s, "sde", 0.0, 0) for s in ("hook", "lego"))
+    assert f"| SDE-LNN (lambda 0) = Liquid CfC | **{mean_0:.2f}** |" in noise
+    assert "the CfC's runs. At lambda 0 the SDE field is the CfC bit for bit" in noise
+    assert "0.00 (CfC) & " in (directory / "report" / "tables.tex").read_text()
+
+
 def test_a_tie_is_called_a_tie(hand_built):
     """SDE-LNN at lambda 0 ahead of the MLP by 0.05 dB, under 2 sigma (0.2 dB): a tie."""
     for path in hand_built.rglob("results.json"):
@@ -363,3 +391,69 @@ def test_a_corrupt_results_file_is_one_line_error_naming_it(hand_built):
 def test_unknown_evaluation_is_refused(hand_built):
     with pytest.raises(LiquidGSError, match="--eval"):
         write_report(hand_built, evaluation="median")
+
+
+# ------------------------------------------------------------------ Table III
+# Each field's parameter count under the paper presets (build_field(FieldConfig(name, preset))).
+FIELD_PARAMETERS = {("dnerf", "mlp"): 522_280, ("nerfds", "mlp"): 506_378,
+                    ("dnerf", "cfc"): 1_553_706, ("nerfds", "cfc"): 318_602}  # fmt: skip
+
+
+def cost_rows(tex: str) -> list[tuple[str, str, str]]:
+    """(label, params cell, inference) of the table labelled tab:cost."""
+    start = tex.index("\\label{tab:cost}")
+    body = tex[start : tex.index("\\end{tabular}", start)]
+    lines = [ln.strip() for ln in body.splitlines() if ln.strip().endswith("\\\\")]
+    return [tuple(cell.strip() for cell in ln[:-2].split("&")) for ln in lines]
+
+
+def test_cost_table_is_the_papers_table_iii_in_layout_and_colouring(tmp_path):
+    """MLP, CfC and SDE-LNN runs on D-NeRF and NeRF-DS scenes with the presets' real field sizes: one
+    coloured table in Table III's layout, the CfC and SDE-LNN sharing a row per dataset, the paper's
+    0.32 M and 1.55 M, and the smallest coloured best as the paper colours it."""
+    directory, data = tmp_path / "exp", tmp_path / "data"
+    data.mkdir()
+    runs = []
+    for dataset, scene in (("dnerf", "hook"), ("nerfds", "bell")):
+        for field, lam in (("mlp", 0.0), ("cfc", 0.0), ("sde", 0.05)):
+            run_dir = f"{dataset}/{scene}/{field}"
+            runs.append(RunEntry(dataset, scene, field, lam, 0, dataset, str(data), run_dir, {"field": field}))
+            cfg = preset_config(dataset, data)
+            cfg.field, cfg.lambda_ = field, (lam if field == "sde" else None)
+            save_yaml(cfg, directory / run_dir / "config.yml")
+            params = FIELD_PARAMETERS[(dataset, "cfc" if field == "sde" else field)]
+            results = {**fake_results(30.0, 0.9, 0.1), "field_parameters": params}
+            (directory / run_dir / "results.json").write_text(json.dumps(results))
+    write_manifest(Experiment({"name": "cost"}, str(data), directory, tuple(runs)))
+    write_report(directory, references=True)
+    tex = (directory / "report" / "tables.tex").read_text()
+    rows = cost_rows(tex)
+    assert rows[0] == ("Deformation field", "Params (M)", "Inference")
+    assert "\\begin{tabular}{l|c|c}" in tex.split("\\label{tab:cost}")[1].split("\\end{tabular}")[0]
+    assert rows[1:5] == [
+        ("D-3DGS (MLP) --- NeRF-DS", "0.51", "feed-forward"),
+        ("D-3DGS (MLP) --- D-NeRF", "0.52", "feed-forward"),
+        ("Liquid CfC / SDE-LNN --- NeRF-DS", "\\cellcolor{red!60}0.32", "feed-forward"),
+        ("Liquid CfC / SDE-LNN --- D-NeRF", "1.55", "feed-forward"),
+    ]
+    # The paper's printed rows follow, not ranked: its 0.32 is not coloured beside ours.
+    assert rows[5:] == [("Paper: D-3DGS MLP (D=8, W=256)", "0.52", "feed-forward"),
+                        ("Paper: Liquid CfC / SDE-LNN, NeRF-DS preset", "0.32", "feed-forward"),
+                        ("Paper: Liquid CfC / SDE-LNN, D-NeRF preset", "1.55", "feed-forward")]  # fmt: skip
+    # The paper's own Table III: the same values, and its one coloured cell is the same row's.
+    paper = paper_table("tab:cost")
+    assert "Deformation field & Params (M) & Inference" in paper and "\\best{0.32}" in paper
+    assert {"0.32", "1.55"} <= set(re.findall(r"\d\.\d\d", paper))
+    text = (directory / "report" / "report.md").read_text()
+    assert "| Liquid CfC / SDE-LNN — NeRF-DS | **0.32** | feed-forward |" in text
+
+
+def test_cost_table_colours_the_smallest_at_printed_precision_and_ties_share_it():
+    from liquidgs.experiments.report.tables import SizeRow, size_table
+
+    sizes = {"a": 0.524, "b": 0.3249, "c": 0.3201}
+    rows = [SizeRow(k, k, v, "feed-forward") for k, v in sizes.items()] + [SizeRow("p", "p", 0.1, "ff", ranked=False)]
+    markdown, latex = size_table(rows, "cap", "cap", "tab:cost")
+    # 0.3249 and 0.3201 both print as 0.32: both best; the unranked 0.10 is not
+    assert "| b | **0.32** |" in markdown and "| c | **0.32** |" in markdown and "| p | 0.10 | ff |" in markdown
+    assert latex.count("\\cellcolor{red!60}") == 2 and "orange" not in latex

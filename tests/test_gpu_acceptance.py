@@ -11,14 +11,20 @@ import pytest
 
 from liquidgs.cli import main as cli
 from liquidgs.data import generate_synthetic
-from liquidgs.train.acceptance import build_parser, summary_lines
+from liquidgs.train.acceptance import (
+    SCENE_MIN_GAIN_DB,
+    SCENE_MIN_ITERATIONS,
+    build_parser,
+    scene_verdict,
+    summary_lines,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 RECORD = {
     "device_name": "NVIDIA H200", "torch_version": "2.11.0+cu130", "gsplat_version": "1.5.3",
     "scene": "hellwarrior", "resolution": [800, 800], "field": "mlp", "iterations": 12345,
     "train_seconds": 600.4, "iterations_per_second": 20.56, "n_gaussians": 81234, "render_fps": 143.2,
-    "psnr": 38.123, "ssim": 0.98765, "lpips": None, "lpips_metric": None,
+    "initial_psnr": 11.87, "psnr": 38.123, "ssim": 0.98765, "lpips": None, "lpips_metric": None,
     "evaluation": "test views at iteration 12345 of the 40000 planned (cut short by the budget)",
 }  # fmt: skip
 
@@ -42,6 +48,20 @@ def test_summary_names_the_gpu_and_labels_the_cut_short_evaluation():
     assert lines[3].startswith("test PSNR 38.12 dB, SSIM 0.9877, LPIPS unavailable - test views at iteration 12345")
     with_lpips = summary_lines({**RECORD, "lpips": 0.0312, "lpips_metric": "LPIPS-Alex"})
     assert "LPIPS-Alex 0.0312" in with_lpips[3]
+
+
+def test_the_scene_bar_passes_a_run_that_learned_and_fails_one_that_did_not():
+    passed, line = scene_verdict(RECORD)
+    assert passed and line.startswith("scene bar: pass - test PSNR 38.12 dB at iteration 12345, +26.25 dB over")
+    assert summary_lines(RECORD)[-1] == line
+    at_the_bar = {**RECORD, "iterations": SCENE_MIN_ITERATIONS, "psnr": RECORD["initial_psnr"] + SCENE_MIN_GAIN_DB}
+    assert scene_verdict(at_the_bar)[0]
+    flat = {**RECORD, "psnr": RECORD["initial_psnr"] + SCENE_MIN_GAIN_DB - 0.01}  # e.g. gradients that do nothing
+    assert scene_verdict(flat) == (False, scene_verdict(flat)[1])
+    assert scene_verdict(flat)[1].startswith(f"scene bar: FAIL (PSNR gain under {SCENE_MIN_GAIN_DB:g} dB)")
+    slow = {**RECORD, "iterations": SCENE_MIN_ITERATIONS - 1}
+    assert scene_verdict(slow)[1].startswith(f"scene bar: FAIL ({SCENE_MIN_ITERATIONS - 1} iterations, under")
+    assert not scene_verdict({**RECORD, "psnr": float("nan")})[0]  # a diverged run
 
 
 def test_dry_run_prints_the_plan_and_writes_nothing(scene, tmp_path, capsys):

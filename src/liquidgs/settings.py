@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import types
 import typing
 from collections.abc import Callable
@@ -82,7 +83,10 @@ def to_dict(obj) -> dict:
     return convert(dataclasses.asdict(obj))
 
 
+@functools.cache
 def _hints(cls) -> dict[str, Any]:
+    """A class's resolved type hints (read-only). Cached: resolving them re-evaluates every
+    annotation string, and expanding a spec of 60 runs asked for them 27,000 times (18 s of its 19)."""
     return typing.get_type_hints(cls, include_extras=True)
 
 

@@ -1,6 +1,7 @@
-"""`liquidgs data {synth,check,video,images,undistort}`: generate built-in synthetic scenes, validate
-dataset folders, turn your own video or image folder into a scene (cameras solved by COLMAP, frames
-undistorted into pinhole cameras), and undistort an existing Nerfies-layout scene."""
+"""`liquidgs data {synth,check,download,video,images,undistort}`: generate built-in synthetic scenes,
+validate dataset folders, download the D-NeRF or NeRF-DS scenes, turn your own video or image folder
+into a scene (cameras solved by COLMAP, frames undistorted into pinhole cameras), and undistort an
+existing Nerfies-layout scene."""
 
 from __future__ import annotations
 
@@ -53,6 +54,17 @@ class CheckArgs:
     """Background colour RGBA images are composited on."""
     val_as_test: bool = DATA_DEFAULTS["val_as_test"]
     """D-NeRF: use the val split as test."""
+
+
+@dataclass
+class DownloadArgs:
+    """Download a dataset's public archive (D-NeRF or NeRF-DS), check it, unpack it and check every scene."""
+
+    dataset: tyro.conf.Positional[str]
+    """dnerf (the 8 D-NeRF scenes) or nerfds (the 7 NeRF-DS scenes)."""
+    dir: tyro.conf.Positional[Path]
+    """Folder to create (must not exist): one sub-folder per scene, e.g. DIR/hook; an experiment's
+    --data-root is the folder holding DIR when DIR is named dnerf or nerfds."""
 
 
 @dataclass(kw_only=True)
@@ -201,6 +213,12 @@ def _capture(args: CaptureArgs, source: Path, video: bool, fps: float | None = N
     return 0
 
 
+def download(args: DownloadArgs) -> int:
+    from liquidgs.data.download import main as download_main
+
+    return download_main(args.dataset, args.dir)
+
+
 def video(args: VideoArgs) -> int:
     frames = args.frames if args.frames is not None or args.fps is not None else DEFAULT_VIDEO_FRAMES
     return _capture(args, args.video, True, fps=args.fps, frames=frames)
@@ -231,6 +249,7 @@ def undistort(args: UndistortArgs) -> int:
 SUBCOMMANDS = {
     "synth": (SynthArgs, synth),
     "check": (CheckArgs, check),
+    "download": (DownloadArgs, download),
     "video": (VideoArgs, video),
     "images": (ImagesArgs, images),
     "undistort": (UndistortArgs, undistort),
@@ -239,10 +258,10 @@ SUBCOMMANDS = {
 
 def main(argv: list[str]) -> int:
     if not argv or argv[0] not in SUBCOMMANDS:
-        usage = "usage: liquidgs data {synth,check,video,images,undistort} [--help]"
+        usage = "usage: liquidgs data {synth,check,download,video,images,undistort} [--help]"
         if argv and argv[0] in ("-h", "--help"):
             print(usage)
             return 0
-        raise ConfigError(f"choose a subcommand: synth, check, video, images or undistort ({usage})")
+        raise ConfigError(f"choose a subcommand: synth, check, download, video, images or undistort ({usage})")
     spec, run = SUBCOMMANDS[argv[0]]
     return run(parse_flags(spec, argv[1:], prog=f"liquidgs data {argv[0]}", description=spec.__doc__))

@@ -24,7 +24,7 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, Ti
 from liquidgs.errors import ConfigError
 from liquidgs.experiments import BUILTIN_SPECS, expand, generate_scenes, load_spec, read_manifest, write_manifest
 from liquidgs.experiments.estimate import estimate
-from liquidgs.experiments.plan import MANIFEST, check_same_experiment
+from liquidgs.experiments.plan import MANIFEST, RunEntry, check_same_experiment
 from liquidgs.experiments.runner import RunOutcome, finished_elsewhere, run_experiment
 from liquidgs.settings import parse_flags
 
@@ -72,16 +72,23 @@ def run(args: RunArgs, console: Console) -> int:
     unchanged = check_same_experiment(experiment)
     done = [r for r in experiment.runs if r.is_done(experiment.directory)]
     if args.dry_run:
-        shared = 0
+        shared, twins, to_train = 0, 0, []
+        first_of: dict[str, RunEntry] = {}
         for entry in experiment.runs:
+            twin = first_of.setdefault(entry.run_dir, entry)
             donor = None if entry in done else finished_elsewhere(entry, experiment.directory)
-            shared += donor is not None
-            state = "done" if entry in done else "shared" if donor is not None else "to run"
-            print(f"{entry.name:<44} {state:<7} {donor or entry.folder(experiment.directory)}")
+            if twin is not entry and entry not in done:
+                state, where, twins = "twin", f"the same run as {twin.name} (trained once)", twins + 1
+            else:
+                state = "done" if entry in done else "shared" if donor is not None else "to run"
+                where = donor or entry.folder(experiment.directory)
+                shared += donor is not None
+                to_train += [entry] if state == "to run" else []
+            print(f"{entry.name:<44} {state:<7} {where}")
         also = f", {shared} finished in another experiment, to be shared" if shared else ""
-        where = f"in {experiment.directory}; nothing was run (--dry-run)"
-        print(f"{len(experiment.runs)} runs ({len(done)} done{also}) {where}")
-        to_train = [e for e in experiment.runs if e not in done and finished_elsewhere(e, experiment.directory) is None]
+        also += f", {twins} the same run as another row (SDE at lambda 0 = CfC), trained once" if twins else ""
+        print(f"{len(experiment.runs)} runs ({len(done)} done{also}) in {experiment.directory}; "
+              "nothing was run (--dry-run)")  # fmt: skip
         print(estimate(to_train).line(len(to_train)))
         return 0
     if not unchanged and (experiment.directory / MANIFEST).is_file():

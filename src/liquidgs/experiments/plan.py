@@ -68,6 +68,16 @@ class RunEntry:
     def is_done(self, experiment_dir: Path) -> bool:
         return (self.folder(experiment_dir) / RESULTS).is_file()
 
+    @property
+    def trained_as_cfc(self) -> bool:
+        """An SDE row at lambda 0 that the plan trains as the CfC run (plan.cfc_twin)."""
+        return self.field == "sde" and self.config is not None and self.config.get("field") == "cfc"
+
+    @property
+    def trained_field(self) -> str:
+        """The field the run folder's configuration trains."""
+        return "cfc" if self.trained_as_cfc else self.field
+
     def train_config(self) -> TrainConfig:
         if self.config is None:
             raise LiquidGSError(
@@ -165,6 +175,25 @@ def _check_axes(grid: Grid, where: str, overrides: dict, source: str) -> None:
                               f"give it there")  # fmt: skip
 
 
+def cfc_twin(preset: str, data: Path, run_settings: dict, source: str) -> TrainConfig | None:
+    """The CfC run an SDE row at lambda 0 is, or None when a setting makes it differ.
+
+    At lambda 0 the SDE field is the CfC bit for bit: the same module, and no noise is drawn
+    (tests/test_fields_cfc.py::test_noise_switches_off_exactly). So the plan trains it once, as the
+    CfC run with the same settings: one folder for both rows, in this experiment and in any sibling
+    (noise-study's lambda 0 row is paper-dnerf's and paper-nerfds' CfC runs). A setting only the sde
+    field takes (another noise kind, a lambda schedule, adaptive lambda) keeps it an sde run: the CfC
+    refuses it (FieldConfig's own rule), and with it the two are not the same module.
+    """
+    if run_settings.get("field") != "sde" or run_settings.get("lambda_") != 0:
+        return None
+    as_cfc = {key: value for key, value in run_settings.items() if key != "lambda_"} | {"field": "cfc"}
+    try:
+        return run_config(preset, data, as_cfc, source)
+    except ConfigError:
+        return None
+
+
 def _check_overrides(grid: Grid, data: Path, source: str) -> None:
     """Every override mapping with the field it is for. When one fails, the error names the
     first key that fails alone; settings that only fail together are named as their mapping."""
@@ -212,7 +241,8 @@ def expand(spec: ExperimentSpec, data_root: str | Path, directory: str | Path) -
                         run_settings = {**_field_settings(variant), "seed": seed, **overrides}
                         where = f"{source}: {scene}/{variant.label}"
                         cfg = run_config(grid.preset, folders[scene], run_settings, where)
-                        parent = Path(directory) / grid.dataset / label / variant.field
+                        cfg = cfc_twin(grid.preset, folders[scene], run_settings, where) or cfg
+                        parent = Path(directory) / grid.dataset / label / cfg.field
                         run_dir = run_folder(cfg, parent).relative_to(Path(directory))
                         runs.append(
                             RunEntry(grid.dataset, label, variant.field, variant.lambda_, seed, grid.preset,
@@ -223,9 +253,10 @@ def expand(spec: ExperimentSpec, data_root: str | Path, directory: str | Path) -
     seen: dict[str, RunEntry] = {}
     named: dict[str, tuple[RunEntry, str]] = {}
     for run, grid in zip(runs, grid_of):
-        if run.run_dir in seen:
-            raise ConfigError(f"spec '{spec.name}': {run.name} and {seen[run.run_dir].name} are the same run")
-        seen[run.run_dir] = run
+        twin = seen.get(run.run_dir)
+        if twin is not None and not (run.trained_as_cfc or twin.trained_as_cfc):
+            raise ConfigError(f"spec '{spec.name}': {run.name} and {twin.name} are the same run")
+        seen.setdefault(run.run_dir, run)
         # A run's name labels its log, its config file and its report row: one name, one run.
         if run.name in named:
             other, other_grid = named[run.name]
@@ -244,6 +275,18 @@ def expand(spec: ExperimentSpec, data_root: str | Path, directory: str | Path) -
 def _strength_value(perturb: str, strength: float) -> float | int:
     """The `--perturb.*` value of a strength (keep_frames counts frames)."""
     return int(strength) if perturb == "keep_frames" else strength
+
+
+def distinct_runs(runs) -> list[RunEntry]:
+    """One entry per run folder: an SDE row at lambda 0 and the CfC row it shares a folder with are
+    trained once."""
+    seen: set[str] = set()
+    out = []
+    for run in runs:
+        if run.run_dir not in seen:
+            seen.add(run.run_dir)
+            out.append(run)
+    return out
 
 
 def write_manifest(experiment: Experiment) -> Path:

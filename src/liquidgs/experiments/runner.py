@@ -23,7 +23,7 @@ from pathlib import Path
 from queue import Queue
 
 from liquidgs.errors import ConfigError
-from liquidgs.experiments.plan import Experiment, RunEntry
+from liquidgs.experiments.plan import Experiment, RunEntry, distinct_runs
 from liquidgs.train.config import folder_names, save_yaml
 from liquidgs.train.run_folder import CHECKPOINT, RESULTS
 
@@ -286,9 +286,33 @@ def run_experiment(
     ]
     for outcome in skipped:
         on_outcome(outcome)
-    todo = [r for r in experiment.runs if not r.is_done(directory)]
+    pending = [r for r in experiment.runs if not r.is_done(directory)]
+    todo = distinct_runs(pending)
     if not todo:
         return skipped
     if executor == "ray":
-        return skipped + run_ray(todo, directory, parallel, on_outcome, address=ray_address)
-    return skipped + run_local(todo, directory, parallel, on_outcome)
+        trained = run_ray(todo, directory, parallel, on_outcome, address=ray_address)
+    else:
+        trained = run_local(todo, directory, parallel, on_outcome)
+    return skipped + trained + _twin_outcomes(pending, todo, trained, directory, on_outcome)
+
+
+def _twin_outcomes(pending: list[RunEntry], todo: list[RunEntry], trained: list[RunOutcome], directory: Path,
+                   on_outcome: Callable[[RunOutcome], None]) -> list[RunOutcome]:  # fmt: skip
+    """An outcome for each entry trained as another's run (an SDE row at lambda 0, the CfC's run): its twin's."""
+    by_folder = {entry.run_dir: outcome for entry, outcome in _paired(todo, trained)}
+    outcomes = []
+    trained_names = {entry.name for entry in todo}
+    for entry in pending:
+        if entry.name in trained_names:
+            continue
+        twin = by_folder[entry.run_dir]
+        outcome = RunOutcome(entry.name, twin.status, 0.0, twin.log, f"the same run as {twin.name}: trained once")
+        outcomes.append(outcome)
+        on_outcome(outcome)
+    return outcomes
+
+
+def _paired(entries: list[RunEntry], outcomes: list[RunOutcome]) -> list[tuple[RunEntry, RunOutcome]]:
+    by_name = {outcome.name: outcome for outcome in outcomes}
+    return [(entry, by_name[entry.name]) for entry in entries]

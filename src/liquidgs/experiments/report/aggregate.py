@@ -14,7 +14,8 @@ from dataclasses import dataclass
 from liquidgs.experiments.report.collect import Collection, Method, RunRecord
 from liquidgs.experiments.report.references import MEAN, paper_sigma
 from liquidgs.experiments.report.significance import CONFIDENCE, MIN_CLUSTERS, TOO_FEW, cluster_difference
-from liquidgs.experiments.report.tables import METRICS
+from liquidgs.experiments.report.tables import METRICS, SizeRow, latex_escape
+from liquidgs.fields.registry import field_label, field_names, field_type
 
 TIE_SIGMAS = 2.0
 
@@ -200,3 +201,42 @@ def lpips_description(runs: list[RunRecord], evaluation: str) -> str:
         return "LPIPS: no finished runs"
     listed = "; ".join(sorted(kinds))
     return "LPIPS: " + (listed if len(kinds) == 1 else "MIXED across runs: " + listed)
+
+
+DATASET_TITLES = {"dnerf": "D-NeRF", "nerfds": "NeRF-DS"}
+
+
+def inference_kind(run: RunRecord) -> str:
+    """How the field infers: a numerical solver (the liquid field's 'solver' noise steps the LTC ODE),
+    else one feed-forward pass (the noise of the SDE is off at inference)."""
+    return "ODE solver" if getattr(run.config.field_options, "noise", "gate") == "solver" else "feed-forward"
+
+
+def field_sizes(per_dataset: list[DatasetScores]) -> list[SizeRow]:
+    """Table III's rows: the fields of one module (the CfC and SDE-LNN at every lambda: the noise adds
+    no parameters) with the same size share a row, over every dataset where they have that size;
+    a field whose size differs between datasets gets a row per size, named by its datasets.
+    Rows by field, then by size, as the paper orders them."""
+    groups: dict[tuple, dict] = {}
+    for scores in per_dataset:
+        for method in scores.methods:
+            runs = [r for r in scores.runs if r.method == method]
+            if not runs:
+                continue
+            params = round(math.fsum(r.results["field_parameters"] for r in runs) / len(runs))
+            module = field_type(method.field).family or method.field
+            group = groups.setdefault((module, params, inference_kind(runs[0])),
+                                      {"fields": {}, "datasets": [], "rank": method.field_rank})  # fmt: skip
+            group["fields"].setdefault(method.field, None)
+            group["datasets"] += [] if scores.dataset in group["datasets"] else [scores.dataset]
+            group["rank"] = min(group["rank"], method.field_rank)
+    per_module: dict[str, int] = {}
+    for module, _, _ in groups:
+        per_module[module] = per_module.get(module, 0) + 1
+    rows = []
+    for (module, params, inference), group in sorted(groups.items(), key=lambda kv: (kv[1]["rank"], kv[0][1])):
+        names = " / ".join(field_label(name) for name in sorted(group["fields"], key=field_names().index))
+        where = ", ".join(DATASET_TITLES.get(d, d) for d in group["datasets"]) if per_module[module] > 1 else ""
+        label = f"{names} — {where}" if where else names
+        rows.append(SizeRow(label, latex_escape(label).replace("—", "---"), params / 1e6, inference))
+    return rows

@@ -132,7 +132,7 @@ def _check_views(path: Path, per_view: dict) -> None:
 def _check_matches(path: Path, entry: RunEntry, config: TrainConfig) -> None:
     """The folder must hold the run the manifest planned, or its numbers land in the wrong row."""
     found = (config.field, config.seed, config.resolved_lambda() if config.field == "sde" else 0.0)
-    planned = (entry.field, entry.seed, entry.lambda_ if entry.field == "sde" else 0.0)
+    planned = (entry.trained_field, entry.seed, entry.lambda_ if entry.trained_field == "sde" else 0.0)
     if found != planned:
         raise LiquidGSError(
             f"{path}: holds field/seed/lambda {found}, but the manifest plans {planned} for {entry.name} here"
@@ -165,11 +165,13 @@ def collect(experiment_dir: str | Path) -> Collection:
     experiment = read_manifest(experiment_dir)
     finished: list[RunRecord] = []
     missing: list[RunEntry] = []
-    seen: set[str] = set()
+    seen: set[tuple[str, str]] = set()
     for entry in experiment.runs:
-        if entry.run_dir in seen:  # a hand-edited manifest listing a run twice: count it once
+        # A hand-edited manifest listing a run twice: count it once. An SDE row at lambda 0 and the
+        # CfC row whose run it is (plan.cfc_twin) are two rows of one folder: both are read.
+        if (entry.run_dir, entry.label) in seen:
             continue
-        seen.add(entry.run_dir)
+        seen.add((entry.run_dir, entry.label))
         record = read_run(experiment_dir, entry)
         if record is None:
             missing.append(entry)

@@ -243,3 +243,40 @@ class PlainTable:
             "",
         ]
         return "\n".join(lines)
+
+
+# Table III (the paper's cost table): one row per deformation field, its parameters in millions and
+# how it infers; the smallest field coloured best, the only colour the paper's Table III uses.
+PARAMS_MILLIONS = Metric("params", "Params (M)", 2, False)
+SIZE_GROUP = "size"
+
+
+@dataclass(frozen=True)
+class SizeRow:
+    label: str
+    latex_label: str
+    params_millions: float
+    inference: str
+    ranked: bool = True
+    """False for the paper's printed rows (--references): shown, not ranked."""
+
+
+def size_table(rows: list[SizeRow], caption: str, latex_caption: str, label: str) -> tuple[str, str]:
+    """Table III in the paper's layout, (Markdown, LaTeX): Deformation field | Params (M) | Inference."""
+    table = Table([SIZE_GROUP], (PARAMS_MILLIONS,),
+                  [Row(r.label, r.latex_label, {(SIZE_GROUP, "params"): Cell(r.params_millions)}, r.ranked)
+                   for r in rows], caption, latex_caption, label, colours=1)  # fmt: skip
+    best = {i for (i, _, _), rank in ranks(table).items() if rank == 0}
+    header = ["Deformation field", PARAMS_MILLIONS.title, "Inference"]
+    md = [caption, "", "| " + " | ".join(header) + " |", "|---|---:|---|"]
+    tex = ["\\begin{table}[!t]", "\\centering", f"\\caption{{{latex_caption}}}", f"\\label{{{label}}}",
+           "\\setlength{\\tabcolsep}{5pt}", "\\footnotesize", "\\begin{tabular}{l|c|c}", "\\toprule",
+           " & ".join(header) + " \\\\", "\\midrule"]  # fmt: skip
+    for i, row in enumerate(rows):
+        value = printed(row.params_millions, PARAMS_MILLIONS.digits)
+        opening, closing = MARKDOWN_MARKS[0] if i in best else ("", "")
+        md.append(f"| {row.label} | {opening}{value}{closing} | {row.inference} |")
+        cell = f"\\cellcolor{{{RANK_COLOURS[0]}}}{value}" if i in best else value
+        tex.append(f"{row.latex_label} & {cell} & {latex_escape(row.inference)} \\\\")
+    tex += ["\\bottomrule", "\\end{tabular}", "\\end{table}", ""]
+    return "\n".join(md) + "\n", "\n".join(tex)
