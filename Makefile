@@ -1,6 +1,7 @@
 # Two commands do all set-up on a fresh machine:
 #   make demo   - train MLP / CfC / SDE-LNN on the built-in synthetic scene, write a report
 #   make test   - the whole test suite (what .ci/run calls)
+# and, for a contributor's loop, make test-fast - the suite without the tests marked slow (about 2 min)
 # and one opt-in target:
 #   make lpips-reference - re-check (or, with LPIPS_REFERENCE=write, re-record) the PyPI lpips
 #                          distances that tests/test_lpips_reference.py holds ours to; it builds
@@ -13,7 +14,7 @@ LPIPS_REF := .venv-lpips-ref
 LPIPS_RECORD := tests/data/lpips_pypi_reference.json
 LPIPS_REFERENCE ?= check
 
-.PHONY: demo test lint setup lpips-reference
+.PHONY: demo test test-fast lint setup lpips-reference
 
 # As the liquidgs command does (liquidgs/__init__.py): idle OpenMP threads sleep, not spin.
 export OMP_WAIT_POLICY ?= PASSIVE
@@ -38,6 +39,12 @@ test: $(BIN)/liquidgs
 	bash scripts/setup_browser.sh
 	$(BIN)/ruff check src tests
 	$(BIN)/python -m pytest -q tests
+
+# Not a substitute for `make test`: the slow tests hold the quality bars and the crash, resume and
+# executor guarantees.
+test-fast: $(BIN)/liquidgs
+	$(BIN)/ruff check src tests
+	$(BIN)/python -m pytest -q -m "not slow" tests
 
 lint: $(BIN)/liquidgs
 	$(BIN)/ruff check src tests

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import types
 import typing
 from collections.abc import Callable
@@ -47,7 +48,10 @@ def to_dict(obj) -> dict:
     return convert(dataclasses.asdict(obj))
 
 
+@functools.cache
 def _hints(cls) -> dict[str, Any]:
+    """The resolved field types of a config class, read-only. Cached: resolving them evaluates
+    every annotation string, and expanding a 90-run spec asked for them 8,000 times (2.5 s)."""
     return typing.get_type_hints(cls, include_extras=True)
 
 
