@@ -3,6 +3,7 @@
 #   make test   - the whole test suite (what .ci/run calls)
 #   make docs   - the documentation site (docs/, mkdocs.yml) into build/site, offline, warnings as
 #                 errors; installs the `docs` extra into .venv first (CI runs it after make test)
+#   make test-fast - the suite without the tests marked slow, for a contributor's loop
 # and one opt-in target:
 #   make lpips-reference - re-check (or, with LPIPS_REFERENCE=write, re-record) the PyPI lpips
 #                          distances that tests/test_lpips_reference.py holds ours to; it builds
@@ -15,7 +16,7 @@ LPIPS_REF := .venv-lpips-ref
 LPIPS_RECORD := tests/data/lpips_pypi_reference.json
 LPIPS_REFERENCE ?= check
 
-.PHONY: demo test docs lint setup lpips-reference
+.PHONY: demo test test-fast docs lint setup lpips-reference
 
 # As the liquidgs command does (liquidgs/__init__.py): idle OpenMP threads sleep, not spin.
 export OMP_WAIT_POLICY ?= PASSIVE
@@ -48,6 +49,12 @@ $(BIN)/mkdocs: $(BIN)/liquidgs pyproject.toml
 
 docs: $(BIN)/mkdocs
 	$(BIN)/mkdocs build --strict
+
+# Not a substitute for `make test`: the slow tests hold the quality bars and the crash, resume and
+# executor guarantees.
+test-fast: $(BIN)/liquidgs
+	$(BIN)/ruff check src tests examples
+	$(BIN)/python -m pytest -q -m "not slow" tests examples/field-plugin/tests
 
 lint: $(BIN)/liquidgs
 	$(BIN)/ruff check src tests examples

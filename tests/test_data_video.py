@@ -43,6 +43,10 @@ BLANK_AT = 10
 PHONE_LENS = Lens(k1=-0.15)  # barrel distortion as a phone's main camera shows it; SIMPLE_RADIAL's model
 DISTORTED_FRAMES = 16
 
+# COLMAP on rendered videos in the fixtures and two 500-iteration trainings, about 30 s for the
+# file: left out of `make test-fast`.
+pytestmark = pytest.mark.slow
+
 
 @pytest.fixture(scope="module")
 def handheld(tmp_path_factory):

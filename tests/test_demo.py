@@ -2,12 +2,14 @@
 
 import imageio.v2 as imageio
 import numpy as np
+import pytest
 from PIL import Image
 
 from liquidgs.cli import main as cli
 from shared_data import use_optional_lpips
 
 
+@pytest.mark.slow
 def test_demo_writes_the_report(tmp_path, monkeypatch, capsys):
     lpips_dir = use_optional_lpips(monkeypatch)
     out = tmp_path / "report"

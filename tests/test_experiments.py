@@ -118,6 +118,7 @@ def test_noise_studys_lambda_0_row_is_the_cfc_runs_trained_once(tmp_path, capsys
     assert "GPU-time estimate for the 45 runs to train" in out
 
 
+@pytest.mark.slow
 def test_an_sde_row_at_lambda_0_beside_the_cfc_row_is_trained_once(data_root, tmp_path, capsys):
     spec = write_spec(tmp_path / "s.yml", small_spec("twins", scenes=["puppet"], fields=["cfc", "sde"],
                                                      lambdas=[0.0, 0.05]))  # fmt: skip
@@ -143,11 +144,12 @@ def test_an_sde_row_at_lambda_0_beside_the_cfc_row_is_trained_once(data_root, tm
     assert run.trained_field == "sde" and "/sde/" in run.run_dir
 
 
+@pytest.mark.slow
 def test_a_run_finished_in_a_sibling_experiment_is_shared_not_retrained(data_root, tmp_path, capsys):
     experiments = tmp_path / "experiments"
     first = expand(spec_from_dict(small_spec("first", scenes=["puppet"]), "t"), data_root, experiments / "first")
     write_manifest(first)
-    assert all(o.status == "done" for o in run_experiment(first, parallel=1))
+    assert all(o.status == "done" for o in run_experiment(first, parallel=2))
     second_spec = small_spec("second", scenes=["puppet"], lambdas=[0.05, 0.1])
     spec_path = write_spec(tmp_path / "second.yml", second_spec)
     args = ["experiment", "run", str(spec_path), "--data-root", str(data_root), "--out", str(experiments / "second")]
@@ -308,6 +310,7 @@ def test_bad_spec_on_the_command_line_is_one_line(data_root, tmp_path):
     assert code == 2 and err.strip().count("\n") == 0 and "unknown field 'nope'" in err
 
 
+@pytest.mark.slow
 def test_run_skip_done_and_keep_going_after_a_failure(data_root, tmp_path):
     broken_root = tmp_path / "data"
     shutil.copytree(data_root, broken_root)
@@ -335,6 +338,7 @@ def test_run_skip_done_and_keep_going_after_a_failure(data_root, tmp_path):
     assert code == 0 and "done 0, skipped 4" in err
 
 
+@pytest.mark.slow
 def test_an_interrupted_grid_resumes_and_trains_every_run_once(data_root, tmp_path):
     spec = small_spec(overrides=tiny_overrides({"iterations": 60, "checkpoint_every": 5, "eval.start": 60}))
     spec_file = write_spec(tmp_path / "s.yml", spec)
@@ -381,6 +385,7 @@ def test_parallel_must_be_positive(data_root, tmp_path):
 
 
 # ----------------------------------------------------------------------------- Ray
+@pytest.mark.slow
 def test_ray_executor_runs_every_run_once_and_survives_a_killed_worker(data_root, tmp_path):
     spec = small_spec(
         fields=["mlp"], overrides=tiny_overrides({"iterations": 100, "checkpoint_every": 10, "eval.start": 100})

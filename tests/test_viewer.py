@@ -319,6 +319,7 @@ def mean_difference(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.abs(a.astype(np.float32) - b.astype(np.float32)).mean())
 
 
+@pytest.mark.slow
 def test_viewer_in_a_real_browser(browser, run_dir, test_renders, tmp_path):
     from liquidgs.viewer.scenes import load_runs
     from liquidgs.viewer.server import Viewer
