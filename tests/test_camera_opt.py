@@ -7,6 +7,7 @@ import json
 import math
 import shutil
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -18,6 +19,7 @@ from liquidgs.commands.train import resolve_config
 from liquidgs.data import generate_synthetic
 from liquidgs.data.perturb import rotation_about
 from liquidgs.errors import LiquidGSError
+from liquidgs.eval.poses import pose_errors
 from liquidgs.train.camera_opt import (
     CameraRefineConfig,
     CameraRefinement,
@@ -58,9 +60,9 @@ def _render(gaussians: Deformed, camera: Camera, backend: str = "auto") -> torch
 TRUE_VIEW = look_at(torch.tensor([0.3, -0.4, 3.5]), torch.zeros(3), torch.tensor([0.0, -1.0, 0.0]))
 
 
-def _moved(viewmat: torch.Tensor, degrees: float, shift: list[float]) -> torch.Tensor:
-    """The camera turned about its centre by `degrees` around a fixed axis and its centre moved."""
-    rotation = rotation_about(np.array([0.48, 0.6, 0.64]), math.radians(degrees))
+def _moved(viewmat: torch.Tensor, degrees: float, shift: list[float], axis=(0.48, 0.6, 0.64)) -> torch.Tensor:
+    """The camera turned about its centre by `degrees` around `axis` (unit) and its centre moved."""
+    rotation = rotation_about(np.array(axis), math.radians(degrees))
     r = viewmat.double().numpy()[:3, :3] @ rotation.T
     centre = camera_centre(viewmat.double()).numpy() + np.array(shift)
     out = np.eye(4)
@@ -110,7 +112,7 @@ def test_alignment_recovers_a_perturbed_camera_on_a_frozen_scene():
 
 
 def test_a_correction_past_its_bound_is_one_line_naming_the_frame():
-    frames = [type("F", (), {"name": name})() for name in ("000001", "000002")]
+    frames = [SimpleNamespace(name=name, camera=_camera(TRUE_VIEW)) for name in ("000001", "000002")]
     refinement = CameraRefinement(CameraRefineConfig(max_rotation_deg=5.0), frames, 2.0, 100, "cpu", 1e-15)
     refinement.check_bounds(1)
     with torch.no_grad():
@@ -230,3 +232,54 @@ def test_a_refining_checkpoint_without_corrections_is_one_line(capture, tmp_path
 
     assert cli(["train", "--out", str(out), "--resume"]) == 2
     assert "trained without camera refinement" in one_line_error(capsys)
+
+
+# ---------------------------------------------------------------------- refinement recovers poses
+def _ring(n: int) -> list[torch.Tensor]:
+    """n cameras on an arc 3.5 from the origin, looking at it (a capture's layout)."""
+    eyes = [torch.tensor([3.5 * math.sin(a), -0.5, 3.5 * math.cos(a)]) for a in torch.linspace(-0.6, 0.6, n)]
+    return [look_at(eye, torch.zeros(3), torch.tensor([0.0, -1.0, 0.0])) for eye in eyes]
+
+
+def test_pose_errors_see_through_the_gauge():
+    """The same cameras in a moved, turned and scaled world: raw errors, no aligned error."""
+    truth = torch.stack(_ring(6)).double()
+    turn = torch.from_numpy(rotation_about(np.array([0.0, 0.6, 0.8]), math.radians(3.0)))
+    world = torch.eye(4, dtype=torch.float64)  # x_world -> 1.1 turn x + shift, applied to every camera
+    world[:3, :3], world[:3, 3] = 1.1 * turn, torch.tensor([0.2, 0.0, -0.1], dtype=torch.float64)
+    moved = truth @ torch.linalg.inv(world)
+    moved[:, :3, :] /= torch.linalg.norm(moved[:, :3, :3], dim=-1, keepdim=True)  # rotation rows unit again
+    errors = pose_errors(moved, truth)
+    assert errors["rotation_deg"] > 2.9 and errors["translation"] > 0.2
+    assert errors["aligned_rotation_deg"] < 1e-3 and errors["aligned_translation"] < 1e-4
+    assert abs(errors["gauge_scale"] - 1 / 1.1) < 1e-4 and abs(errors["gauge_rotation_deg"] - 3.0) < 1e-3
+
+
+def test_refinement_recovers_perturbed_poses_on_a_frozen_scene():
+    """What a user checks: from poses off by about a degree and 1-2% of the cameras' extent, the
+    refinement's defaults (its Adam, learning rates and schedule), given the updates per camera a
+    quick look gives (20), turn the cameras back: measured 1.08 -> 0.60 deg gauge-aligned (lr 1e-2:
+    0.28). The shift (0.030) barely moves at the default learning rate (0.024), so it is only held
+    to not growing."""
+    scene = _scene(n=1500, spread=4.0, scale=0.08)
+    truth = _ring(6)
+    images = [_render(scene, _camera(v)) for v in truth]
+    rng = np.random.default_rng(3)
+    axes = rng.normal(size=(len(truth), 3))
+    noisy = [_moved(v, 1.2, list(rng.normal(0.0, 0.03, 3)), a / np.linalg.norm(a)) for v, a in zip(truth, axes)]
+    frames = [SimpleNamespace(name=f"{i:06d}", camera=_camera(v)) for i, v in enumerate(noisy)]
+    steps = 20 * len(frames)
+    refinement = CameraRefinement(CameraRefineConfig(), frames, 3.5, steps, "cpu", 1e-15)
+    for step in range(steps):
+        index = step % len(frames)
+        rgb = _render(refinement.correct(scene, index, frames[index].camera, step), frames[index].camera)
+        (rgb - images[index]).abs().mean().backward()
+        refinement.step(step)
+    refined = torch.stack([
+        corrected_viewmat(v, refinement.rotations[i].detach(), refinement.translations[i].detach())
+        for i, v in enumerate(noisy)
+    ])  # fmt: skip
+    before, after = pose_errors(torch.stack(noisy), torch.stack(truth)), pose_errors(refined, torch.stack(truth))
+    assert before["aligned_rotation_deg"] > 1.0 and before["aligned_translation"] > 0.025, before
+    assert after["aligned_rotation_deg"] < 0.7 * before["aligned_rotation_deg"], (before, after)
+    assert after["aligned_translation"] < before["aligned_translation"], (before, after)

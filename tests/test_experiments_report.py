@@ -457,3 +457,30 @@ def test_cost_table_colours_the_smallest_at_printed_precision_and_ties_share_it(
     # 0.3249 and 0.3201 both print as 0.32: both best; the unranked 0.10 is not
     assert "| b | **0.32** |" in markdown and "| c | **0.32** |" in markdown and "| p | 0.10 | ff |" in markdown
     assert latex.count("\\cellcolor{red!60}") == 2 and "orange" not in latex
+
+
+def test_aligned_and_masked_scores_have_their_own_labelled_columns(hand_built):
+    """A run that refined its cameras (final_aligned) and one scored with `eval --mask`: their second
+    scores appear in their own columns, the per-scene tables keep the given-camera scores only."""
+    refined = hand_built / "dnerf/hook/mlp/l0.0-s0"
+    results = json.loads((refined / "results.json").read_text())
+    results["final_aligned"] = {"psnr": 41.23, "ssim": 0.9876, "cameras": "each test camera aligned (protocol)"}
+    (refined / "results.json").write_text(json.dumps(results))
+    masked = hand_built / "dnerf/lego/mlp/l0.0-s1"
+    (masked / "eval.json").write_text(json.dumps({"masked": {"masks": "m", "cameras": "as given",
+                                                             "inside": {"psnr": 17.89, "ssim": 0.5, "share": 0.2},
+                                                             "outside": {"psnr": 35.67, "ssim": 0.9, "share": 0.8}}}))
+    text = write_report(hand_built).read_text()
+    main, section = text.split("## Aligned and masked scores")[0], text.split("## Aligned and masked scores")[1]
+    assert "41.23" not in main and "17.89" not in main and "35.67" not in main  # never mixed into given scores
+    section = section.split("\n## ")[0]
+    assert "PSNR, test cameras as given (final) | PSNR, test cameras aligned (final)" in section
+    assert "each test camera aligned (protocol)" in section
+    hook = fake_psnr("hook", "mlp", 0.0, 0)
+    assert f"| dnerf / hook | D-3DGS (MLP) | 0 | {hook:.2f} | 41.23 | 0.9876 | - | - |" in section
+    lego = fake_psnr("lego", "mlp", 0.0, 1)
+    assert f"| dnerf / lego | D-3DGS (MLP) | 1 | {lego:.2f} | - | - | 17.89 | 35.67 |" in section
+    assert section.count("| dnerf /") == 2  # runs without second scores get no row
+    (masked / "eval.json").write_text(json.dumps({"masked": {"inside": {}}}))
+    with pytest.raises(LiquidGSError, match="eval.json: field 'masked' must be an object with inside, outside"):
+        write_report(hand_built)

@@ -17,7 +17,7 @@ from liquidgs.errors import LiquidGSError
 from liquidgs.experiments.plan import Experiment, RunEntry, read_manifest
 from liquidgs.fields.registry import field_label, field_names, field_type
 from liquidgs.train.config import TrainConfig, load_yaml
-from liquidgs.train.run_folder import CONFIG, PER_VIEW, RESULTS, check_results_format
+from liquidgs.train.run_folder import CONFIG, EVAL, PER_VIEW, RESULTS, check_results_format
 
 EVALUATIONS = ("final", "best_of")
 SCORE_KEYS = ("psnr", "ssim")
@@ -66,6 +66,19 @@ class RunRecord:
 
     def evaluation(self, which: str) -> dict:
         return self.results[which]
+
+    def second_scores(self) -> tuple[dict | None, dict | None]:
+        """The labelled second scores: the final test split with test cameras aligned to the scene
+        (results.json's final_aligned, runs that refine), and `liquidgs eval --mask`'s inside / outside
+        scores (eval.json's masked, cameras as given); None where the run has none."""
+        aligned = self.results.get("final_aligned") or None
+        eval_path = self.folder / EVAL
+        masked = _read_json(eval_path, EVAL).get("masked") if eval_path.is_file() else None
+        for what, record, path, keys in (("final_aligned", aligned, self.folder / RESULTS, ("psnr", "ssim")),
+                                         ("masked", masked, eval_path, ("inside", "outside"))):  # fmt: skip
+            if record is not None and not (isinstance(record, dict) and all(k in record for k in keys)):
+                raise LiquidGSError(f"{path}: field '{what}' must be an object with {', '.join(keys)}")
+        return aligned, masked
 
 
 @dataclass(frozen=True)

@@ -147,6 +147,39 @@ def _score_section(scores: DatasetScores, evaluation: str, references: bool, md:
             tex.append(to_latex(diff))
 
 
+def _score(value) -> str:
+    return "-" if value is None else printed(value, 2)
+
+
+def _second_scores_section(collection: Collection, md: list[str]) -> None:
+    """Aligned-camera and masked scores, each in its own labelled column beside the given-camera
+    score, one row per run that has either; nothing when no run has them."""
+    table = PlainTable(["Dataset / scene", "Method", "Seed", "PSNR, test cameras as given (final)",
+                        "PSNR, test cameras aligned (final)", "SSIM, test cameras aligned (final)",
+                        "PSNR inside masks (eval, as given)", "PSNR outside masks (eval, as given)"])  # fmt: skip
+    protocols: set[str] = set()
+    for run in collection.finished:
+        aligned, masked = run.second_scores()
+        if aligned is None and masked is None:
+            continue
+        if aligned is not None:
+            protocols.add(str(aligned.get("cameras", "")))
+        inside, outside = (masked["inside"], masked["outside"]) if masked is not None else ({}, {})
+        table.add(f"{run.entry.dataset} / {run.entry.scene}", "", [
+            run.method.label, str(run.entry.seed), _score(run.results["final"]["psnr"]),
+            _score(aligned and aligned["psnr"]), "-" if aligned is None else printed(aligned["ssim"], 4),
+            _score(inside.get("psnr")), _score(outside.get("psnr")),
+        ])  # fmt: skip
+    if not table.rows:
+        return
+    md += ["## Aligned and masked scores", "",
+           "Scored apart from the tables above, never in their columns. *Aligned*: "
+           + ("; ".join(sorted(p for p in protocols if p)) or "-")
+           + ". *Masks*: `liquidgs eval --mask` of the run (its eval.json), PSNR inside and outside the "
+           "per-view masks of the moving subject, test cameras as given; a dash where the run has none.", "",
+           table.to_markdown()]  # fmt: skip
+
+
 def _spread_section(scores: DatasetScores, md: list[str]) -> None:
     spreads = seed_spreads(scores)
     sigma, source = tie_sigma(spreads)
@@ -344,6 +377,7 @@ def write_report(
     for scores in per_dataset:
         _score_section(scores, evaluation, references, md, tex)
     margin_section(collection, md, tex)
+    _second_scores_section(stress, md)
     md += ["## Seed spread and ties", ""]
     for scores in per_dataset:
         _spread_section(scores, md)
