@@ -1,4 +1,4 @@
-"""`liquidgs bench {raster,fields,train,gpu}`: benchmarks that print one JSON object per case."""
+"""`liquidgs bench {raster,fields,train,gpu,bake}`: benchmarks that print one JSON object per case."""
 
 from __future__ import annotations
 
@@ -10,6 +10,7 @@ BENCHMARKS = {
     "fields": "liquidgs.fields.benchmark",
     "train": "liquidgs.train.benchmark",
     "gpu": "liquidgs.train.acceptance",
+    "bake": "liquidgs.bake.benchmark",
 }
 
 

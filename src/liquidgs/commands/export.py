@@ -75,9 +75,9 @@ def export_run(args: ExportArgs, console: Console | None = None) -> list[Path]:
         console.print(f"[yellow]note:[/] {args.run}: {run.progress_label}")
     out = args.out or args.run / "export"
     written = [write_ply(out / "canonical.ply", run.params)]
-    field_path = out / "field.pt"
-    payload = {"config": dataclasses.asdict(run.config.field_config()), "state_dict": run.field.state_dict()}
-    written.append(write_atomic(field_path, lambda tmp: torch.save(payload, tmp)))
+    if run.field is not None:  # a baked scene has no network
+        payload = {"config": dataclasses.asdict(run.config.field_config()), "state_dict": run.field.state_dict()}
+        written.append(write_atomic(out / "field.pt", lambda tmp: torch.save(payload, tmp)))
     for t in args.time:
         written.append(write_ply(out / time_file_name(t), baked_params(run, t)))
     if args.sequence:

@@ -30,7 +30,7 @@ class RunScene:
 
     @property
     def has_noise(self) -> bool:
-        return self.run.config.field == "sde"
+        return self.run.config.field == "sde" and self.run.field is not None  # baked: the mean only
 
     @torch.no_grad()
     def render(self, camera: Camera, time: float) -> torch.Tensor:
