@@ -7,8 +7,10 @@ from __future__ import annotations
 import json
 import math
 import shutil
+import struct
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 
@@ -221,3 +223,104 @@ def test_bench_bake_prints_fidelity_and_speed(tiny_run, baked, tmp_path, capsys)
     assert record["bytes_per_gaussian"] == (baked / "scene.pt").stat().st_size / record["gaussians"]
     assert cli(["bench", "bake", "--run", str(tiny_run), "--baked", str(tiny_run)]) == 2
     assert "not a baked scene" in one_line_error(capsys)
+
+
+def test_plyseq_is_a_zip_of_standard_plys_at_evenly_spaced_times(baked, tmp_path):
+    import zipfile
+
+    from liquidgs.gaussians import read_ply
+
+    out = tmp_path / "export"
+    code, _, err = run_cli(["export", "--run", str(baked), "--out", str(out), "--format", "plyseq", "--sequence", "3"])
+    assert code == 0, err
+    with zipfile.ZipFile(out / "sequence.zip") as archive:
+        assert archive.namelist() == ["frame_0000.ply", "frame_0001.ply", "frame_0002.ply"]
+        archive.extractall(tmp_path / "frames")
+    run = load_run(baked, "cpu")
+    for i, time in enumerate((0.0, 0.5, 1.0)):
+        frame = read_ply(tmp_path / "frames" / f"frame_{i:04d}.ply")
+        expected = run.at_time(time)
+        assert torch.allclose(frame["means"], expected.means, atol=1e-6)
+        assert torch.allclose(torch.exp(frame["scales"]), expected.scales.abs(), rtol=1e-5)
+        assert torch.equal(frame["sh0"], run.params["sh0"])
+
+
+def half(word: int, high: bool) -> float:
+    """One float16 of a packHalf2x16 word: the first value in the low 16 bits."""
+    bits = (word >> 16) if high else (word & 0xFFFF)
+    return float(np.array([bits], dtype="<u2").view("<f2")[0])
+
+
+def test_splatv_file_follows_the_layout_splatv_players_read(baked, tmp_path):
+    """Decoded word by word from the format's description (bake/formats.py docstring), not with the
+    writer's record type."""
+    from liquidgs.bake.formats import fit_splatv
+
+    out = tmp_path / "export"
+    code, _, err = run_cli(["export", "--run", str(baked), "--out", str(out), "--format", "splatv"])
+    assert code == 0, err
+    data = (out / "scene.splatv").read_bytes()
+    magic, length = struct.unpack_from("<II", data, 0)
+    assert magic == 0x674B
+    (chunk,) = json.loads(data[8 : 8 + length])
+    assert chunk["type"] == "splat" and chunk["texwidth"] == 4096 and chunk["cameras"][0]["fx"] > 0
+    words = np.frombuffer(data[8 + length :], dtype="<u4")
+    assert words.size * 4 == chunk["size"] == chunk["texwidth"] * chunk["texheight"] * 16
+    run = load_run(baked, "cpu")
+    n = run.params["means"].shape[0]
+    records = words.reshape(-1, 16)
+    assert not records[n:].any()  # the last row's unused slots are zero
+    model, _ = fit_splatv(run)
+    for i in (0, n // 2, n - 1):
+        w = [int(x) for x in records[i]]
+        position = np.array(records[i, :3]).view("<f4")
+        rotation = [half(w[3], False), half(w[3], True), half(w[4], False), half(w[4], True)]
+        scale = [half(w[5], False), half(w[5], True), half(w[6], False)]
+        r, g, b, a = (w[7] >> s & 0xFF for s in (0, 8, 16, 24))
+        motion = [half(w[8 + k // 2], k % 2 == 1) for k in range(9)]
+        omega = [half(w[13], False), half(w[13], True), half(w[14], False), half(w[14], True)]
+        centre, width = half(w[15], False), half(w[15], True)
+        assert np.allclose(position, model.position[i].numpy())
+        assert np.allclose(rotation, model.rotation[i].numpy(), atol=2e-3)
+        assert np.allclose(scale, model.scale[i].numpy(), rtol=2e-3)
+        assert abs(a / 255 - float(model.opacity[i])) <= 0.5 / 255 + 1e-6
+        assert abs(r / 255 - float(model.rgb[i, 0])) <= 0.5 / 255 + 1e-6 and g <= 255 and b <= 255
+        for t in (0.1, 0.8):  # the position and rotation the player computes at time t
+            dt = t - centre
+            m = np.array(motion)
+            p = position + m[0:3] * dt + m[3:6] * dt**2 + m[6:9] * dt**3
+            assert np.allclose(p, model.at_time(t).means[i].numpy(), atol=1e-3)
+            q = np.array(rotation) + np.array(omega) * dt
+            assert np.allclose(q / np.linalg.norm(q), model.at_time(t).quats[i].numpy(), atol=3e-3)
+            assert math.exp(-((dt / width) ** 2)) > 0.999  # a flat temporal opacity
+
+
+def test_splatv_fit_keeps_motion_its_model_can_hold():
+    cubic = AnalyticRun(lambda t: torch.tensor([[t**3 - t, 0.5 * t * t, 1.0], [0.0, 0.0, 0.0]]), 2)
+    cubic.params["sh0"] = torch.zeros(2, 1, 3)
+    from liquidgs.bake.formats import fit_splatv
+
+    model, kept = fit_splatv(cubic)
+    assert kept == pytest.approx(1.0, abs=1e-9)
+    for t in (0.0, 0.37, 1.0):
+        assert torch.allclose(model.at_time(t).means, cubic.path(t), atol=1e-5)
+        assert torch.allclose(model.at_time(t).quats, axis_angle_quats(torch.full((2,), t)), atol=1e-2)
+    wave = AnalyticRun(lambda t: torch.tensor([[math.sin(8 * math.pi * t), 0.0, 0.0]]), 1)
+    wave.params["sh0"] = torch.zeros(1, 1, 3)
+    assert fit_splatv(wave)[1] < 0.5  # four periods: beyond one cubic, and reported as such
+
+
+@pytest.mark.parametrize(
+    "flags, expected",
+    [
+        (["--format", "plyseq"], "--format plyseq needs --sequence N"),
+        (["--format", "splatv", "--time", "0.5"], "--time writes single PLYs"),
+        (["--format", "gif"], "unknown format 'gif'"),
+    ],
+)
+def test_export_format_bad_input_is_one_line(flags, expected, baked, tmp_path, capsys):
+    from liquidgs.cli import main as cli
+
+    assert cli(["export", "--run", str(baked), "--out", str(tmp_path / "x"), *flags]) == 2
+    assert expected in one_line_error(capsys)
+    assert not (tmp_path / "x").exists()
