@@ -7,7 +7,9 @@ DIR may be a baked scene (`liquidgs bake`; no field.pt then).
 
 --format plyseq writes only sequence.zip, the --sequence N frames as one .zip of PLYs (Brush
 plays it); --format splatv writes only scene.splatv, splaTV's per-Gaussian cubic motion fitted
-to the run (see liquidgs.bake.formats), with the share of the motion it keeps printed.
+to the run (see liquidgs.bake.formats), with the share of the motion it keeps printed;
+--format web writes OUT/web, a static page with its WebGL2 player and the baked scene (a run is
+baked on the way with the default budget) that plays offline from any static file server.
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from rich.progress import track
 
 from liquidgs.atomic import write_atomic
 from liquidgs.bake.formats import fit_splatv, frame_params, splatv_camera, write_plyseq, write_splatv
+from liquidgs.bake.web import write_web
 from liquidgs.errors import ConfigError
 from liquidgs.gaussians import write_ply
 from liquidgs.settings import parse_flags
@@ -39,8 +42,9 @@ class ExportArgs:
     """Times in [0,1] to export a deformed PLY for."""
     sequence: int = 0
     """Number of evenly spaced frames of a PLY sequence (0: none); with --format plyseq, of the .zip."""
-    format: Literal["ply", "plyseq", "splatv"] = "ply"
-    """ply: the PLYs above; plyseq: OUT/sequence.zip of --sequence PLYs; splatv: OUT/scene.splatv."""
+    format: Literal["ply", "plyseq", "splatv", "web"] = "ply"
+    """ply: the PLYs above; plyseq: OUT/sequence.zip of --sequence PLYs; splatv: OUT/scene.splatv;
+    web: OUT/web, a static folder that plays the scene in a browser."""
     device: str = "auto"
 
 
@@ -74,6 +78,8 @@ def export_run(args: ExportArgs, console: Console | None = None) -> list[Path]:
         return [write_plyseq(out / "sequence.zip", run, args.sequence)]
     if args.format == "splatv":
         return [export_splatv(run, out / "scene.splatv", console)]
+    if args.format == "web":
+        return [write_web(out / "web", run, load_run_dataset(run.config))]
     written = [write_ply(out / "canonical.ply", run.params)]
     if run.field is not None:  # a baked scene has no network
         payload = {"config": dataclasses.asdict(run.config.field_config()), "state_dict": run.field.state_dict()}
