@@ -324,3 +324,11 @@ def test_export_format_bad_input_is_one_line(flags, expected, baked, tmp_path, c
     assert cli(["export", "--run", str(baked), "--out", str(tmp_path / "x"), *flags]) == 2
     assert expected in one_line_error(capsys)
     assert not (tmp_path / "x").exists()
+
+
+def test_viewer_plays_a_baked_folder(baked, capsys):
+    from liquidgs.cli import main as cli
+
+    assert cli(["view", "--run", str(baked), "--port", "0", "--benchmark", "2", "--resolution", "64"]) == 0
+    record = json.loads(capsys.readouterr().out)
+    assert record["scene"] == "1: mlp, baked (baked)" and record["rest"]["fps"] > 0
