@@ -73,9 +73,15 @@ def test_web_folder_holds_the_player_and_the_scene(web, baked):
     run = load_run(baked, "cpu")
     k, n = run.keyframes.shape[:2]
     stored = meta["sh_stored"]
-    assert (web / "scene.bin").stat().st_size == 4 * (k * n * 10 + n + n * stored * 3)
-    blob = np.frombuffer((web / "scene.bin").read_bytes(), dtype="<f4")
-    assert np.array_equal(blob[: k * n * 10], run.keyframes.numpy().ravel())
+    floats = 2 * n * 10 + n + n * stored * 3
+    data = (web / "scene.bin").read_bytes()
+    assert len(data) == 4 * floats + 2 * k * n * 10
+    head = np.frombuffer(data[: 4 * floats], dtype="<f4")
+    low, span = head[: n * 10].reshape(n, 10), head[n * 10 : 2 * n * 10].reshape(n, 10)
+    assert np.array_equal(head[2 * n * 10 : 2 * n * 10 + n], torch.sigmoid(run.params["opacities"]).numpy())
+    quantised = np.frombuffer(data[4 * floats :], dtype="<u2").reshape(k, n, 10)
+    keyframes = low + span * (quantised / 65535)
+    assert np.all(np.abs(keyframes - run.keyframes.numpy()) <= span / 131070 + 1e-6)
     html = (web / "index.html").read_text() + (web / "player.js").read_text()
     assert "http://" not in html and "https://" not in html  # nothing fetched from elsewhere
 

@@ -82,9 +82,15 @@ class Player {
     const n = meta.gaussians, k = meta.keyframes;
     let offset = 0;
     const take = (count) => { const a = new Float32Array(buffer, offset, count); offset += count * 4; return a; };
-    this.keyframes = take(k * n * CHANNELS);
+    const low = take(n * CHANNELS), span = take(n * CHANNELS);
     this.opacities = take(n);
     this.sh = take(n * meta.sh_stored * 3);
+    const quantised = new Uint16Array(buffer, offset, k * n * CHANNELS);
+    this.keyframes = new Float32Array(k * n * CHANNELS);
+    for (let j = 0; j < k * n * CHANNELS; j++) {
+      const c = j % (n * CHANNELS);
+      this.keyframes[j] = low[c] + span[c] * (quantised[j] / 65535);
+    }
     this.state = new Float32Array(n * CHANNELS);
     this.splats = new Float32Array(n * FLOATS_PER_SPLAT);
     this.depths = new Float32Array(n);
