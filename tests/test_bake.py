@@ -20,7 +20,7 @@ from liquidgs.bake.scene import BakedRun
 from liquidgs.eval.metrics import psnr
 from liquidgs.train.model import Deformed
 from liquidgs.train.run import load_run, load_run_dataset
-from tiny_runs import one_line_error, run_cli, run_train, snapshot, tiny_flags
+from tiny_runs import one_line_error, run_cli, snapshot
 
 
 @pytest.fixture(autouse=True)
@@ -106,17 +106,16 @@ def test_motion_beyond_the_budget_is_baked_and_located():
 
 
 @pytest.fixture(scope="module")
-def tiny_run(puppet_scene, tmp_path_factory) -> Path:
-    out = tmp_path_factory.mktemp("bake") / "run"
-    run_train(["--data", str(puppet_scene), "--field", "mlp", *tiny_flags(), "--out", str(out)])
-    return out
+def tiny_run(tiny_mlp_run) -> Path:
+    return tiny_mlp_run
 
 
 @pytest.fixture(scope="module")
-def baked(tiny_run) -> Path:
-    code, _, err = run_cli(["bake", "--run", str(tiny_run), "--out", str(tiny_run.parent / "baked"), "--device", "cpu"])
+def baked(tiny_run, tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("bake") / "baked"
+    code, _, err = run_cli(["bake", "--run", str(tiny_run), "--out", str(out), "--device", "cpu"])
     assert code == 0, err
-    return tiny_run.parent / "baked"
+    return out
 
 
 def test_baked_scene_renders_the_field_without_it(tiny_run, baked):

@@ -21,7 +21,7 @@ from PIL import Image
 from liquidgs.eval.metrics import psnr
 from liquidgs.media import to_uint8
 from liquidgs.train.run import load_run, load_run_dataset
-from tiny_runs import one_line_error, run_cli, run_train, tiny_flags
+from tiny_runs import one_line_error, run_cli
 
 REPO = Path(__file__).resolve().parents[1]
 ARTIFACTS = Path(os.environ.get("LIQUIDGS_TEST_ARTIFACTS", REPO / "test-artifacts")) / "web"
@@ -43,10 +43,10 @@ def _one_thread(one_torch_thread):
 
 
 @pytest.fixture(scope="module")
-def baked(puppet_scene, tmp_path_factory) -> Path:
+def baked(tiny_mlp_run, tmp_path_factory) -> Path:
     root = tmp_path_factory.mktemp("web")
-    run_train(["--data", str(puppet_scene), "--field", "mlp", *tiny_flags(), "--out", str(root / "run")])
-    code, _, err = run_cli(["bake", "--run", str(root / "run"), "--out", str(root / "baked")])
+    few = ["--min-keyframes", "5", "--max-keyframes", "9"]  # the player is compared with this bake, not the field
+    code, _, err = run_cli(["bake", "--run", str(tiny_mlp_run), "--out", str(root / "baked"), *few])
     assert code == 0, err
     # 40 iterations leave the Gaussians nearly transparent and grey: made opaque and coloured, they
     # give the player's picture something to get wrong.
