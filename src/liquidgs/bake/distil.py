@@ -29,7 +29,9 @@ class BakeSettings:
     """Error budget at the midpoints between keyframes: position and scale error as a fraction of the
     Gaussian's largest axis, rotation error in radians; every visible Gaussian must stay within it."""
     min_keyframes: int = 9
-    max_keyframes: int = 129
+    max_keyframes: int = 65
+    """Measured on the demo scene (MLP, 2,000 iterations): 65 keyframes render at 63 dB against the field
+    (129: 72 dB), half the bytes; past it the budget is reported, not chased."""
 
 
 @dataclass
