@@ -4,6 +4,7 @@ render of the same cameras and times. Screenshots go to test-artifacts/web/."""
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import http.server
 import io
@@ -152,6 +153,24 @@ def test_player_in_chromium_matches_liquidgs_render(browser, served, baked):
         scores.append(image_psnr(shot, expected))
         flat = np.broadcast_to(np.round(background.numpy() * 255).astype(np.uint8), expected.shape)
         assert image_psnr(expected, flat) < 25.0  # there is a scene to see, not just the background
+    # Orbit by dragging: the camera the player ends at, rendered by liquidgs, is what it shows.
+    box = page.locator("#canvas").bounding_box()
+    before = np.asarray(Image.open(io.BytesIO(page.locator("#canvas").screenshot())).convert("RGB"))
+    page.mouse.move(box["x"] + 10, box["y"] + 10)
+    page.mouse.down()
+    page.mouse.move(box["x"] + 25, box["y"] + 18, steps=3)
+    page.mouse.up()
+    page.mouse.wheel(0, 200)
+    view = torch.tensor(page.evaluate("player.view()"), dtype=torch.float64).reshape(4, 4)
+    rotation = view[:3, :3]
+    assert torch.allclose(rotation @ rotation.T, torch.eye(3, dtype=torch.float64), atol=1e-5)
+    shot = np.asarray(Image.open(io.BytesIO(page.locator("#canvas").screenshot())).convert("RGB"))
+    frame = meta_cameras[len(dataset.test) + 2]
+    orbited = dataclasses.replace(frame.camera, viewmat=view.float())
+    expected = to_uint8(run.render(orbited, 0.9, background).rgb)
+    Image.fromarray(np.concatenate([shot, expected], axis=1)).save(ARTIFACTS / "orbited.png")
+    assert image_psnr(shot, before) < 30.0  # the picture moved
+    scores.append(image_psnr(shot, expected))
     fps = page.evaluate("player.benchmark(30)")
     (ARTIFACTS / "scores.json").write_text(
         json.dumps({"psnr": scores, "fps": fps, "gaussians": run.keyframes.shape[1]})

@@ -336,6 +336,7 @@ async function start() {
       return (frames * 1000) / (performance.now() - begin);
     },
     orbit(dx, dy) { player.orbit(dx, dy); player.draw(); },
+    view() { return Array.from(player.camera.view); },
   };
   document.body.dataset.ready = "true";
 }
