@@ -39,3 +39,14 @@ def puppet_scene(tmp_path_factory) -> Path:
     shutil.move(str(generated / "dnerf"), str(root / "puppet"))
     shutil.rmtree(generated)
     return root / "puppet"
+
+
+@pytest.fixture(scope="session")
+def tiny_mlp_run(puppet_scene, tmp_path_factory) -> Path:
+    """A finished tiny MLP run on the puppet (tiny_runs.TINY_RUN), trained once for the tests that
+    only read a run (bake, its formats and its web player)."""
+    from tiny_runs import run_train, tiny_flags
+
+    out = tmp_path_factory.mktemp("tiny_mlp_run") / "run"
+    run_train(["--data", str(puppet_scene), "--field", "mlp", *tiny_flags(), "--out", str(out)])
+    return out

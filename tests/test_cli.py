@@ -20,7 +20,7 @@ def test_unknown_command_and_no_command_exit_2(capsys):
     assert "unknown command 'fly'" in capsys.readouterr().err
     assert cli([]) == 2
     assert cli(["bench"]) == 2
-    assert "liquidgs bench {raster,fields,train,gpu,acceptance}" in capsys.readouterr().err
+    assert "liquidgs bench {raster,fields,train,gpu,acceptance,bake}" in capsys.readouterr().err
 
 
 def test_every_command_module_imports_and_has_main():

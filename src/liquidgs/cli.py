@@ -21,6 +21,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "eval": ("liquidgs.commands.evaluate", "re-evaluate a run's checkpoint"),
     "render": ("liquidgs.commands.render", "test renders, depth, time sweep, orbit video"),
     "export": ("liquidgs.commands.export", "canonical PLY, PLY at a time, PLY sequence"),
+    "bake": ("liquidgs.commands.bake", "distil a run's field into keyframed motion that renders without it"),
     "view": ("liquidgs.commands.view", "browser viewer: scrub time, compare runs, record camera paths"),
     "data": ("liquidgs.commands.data", "generate synthetic scenes, validate dataset folders"),
     "bench": ("liquidgs.commands.bench", "benchmarks that print JSON (raster, fields, train)"),

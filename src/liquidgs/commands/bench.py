@@ -1,5 +1,5 @@
-"""`liquidgs bench {raster,fields,train,gpu,acceptance}`: benchmarks that print one JSON object per case,
-and the GPU acceptance (scripts/gpu_acceptance.sh) in stages."""
+"""`liquidgs bench {raster,fields,train,gpu,acceptance,bake}`: benchmarks that print one JSON object per
+case, and the GPU acceptance (scripts/gpu_acceptance.sh) in stages."""
 
 from __future__ import annotations
 
@@ -12,6 +12,7 @@ BENCHMARKS = {
     "train": "liquidgs.train.benchmark",
     "gpu": "liquidgs.train.acceptance",
     "acceptance": "liquidgs.train.gpu_acceptance",
+    "bake": "liquidgs.bake.benchmark",
 }
 
 

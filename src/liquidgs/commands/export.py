@@ -3,6 +3,13 @@
 Writes DIR/export/canonical.ply, field.pt (the field's weights and config, to evaluate it
 elsewhere), one PLY per --time with the deltas baked in, and with --sequence N a PLY
 sequence sequence/frame_0000.ply ... at N evenly spaced times (SuperSplat/brush timelines).
+DIR may be a baked scene (`liquidgs bake`; no field.pt then).
+
+--format plyseq writes only sequence.zip, the --sequence N frames as one .zip of PLYs (Brush
+plays it); --format splatv writes only scene.splatv, splaTV's per-Gaussian cubic motion fitted
+to the run (see liquidgs.bake.formats), with the share of the motion it keeps printed;
+--format web writes OUT/web, a static page with its WebGL2 player and the baked scene (a run is
+baked on the way with the default budget) that plays offline from any static file server.
 """
 
 from __future__ import annotations
@@ -11,16 +18,19 @@ import dataclasses
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Literal
 
 import torch
 from rich.console import Console
 from rich.progress import track
 
 from liquidgs.atomic import write_atomic
+from liquidgs.bake.formats import fit_splatv, frame_params, splatv_camera, write_plyseq, write_splatv
+from liquidgs.bake.web import write_web
 from liquidgs.errors import ConfigError
 from liquidgs.gaussians import write_ply
 from liquidgs.settings import parse_flags
-from liquidgs.train.run import TrainedRun, load_run
+from liquidgs.train.run import load_run, load_run_dataset
 
 
 @dataclass
@@ -31,25 +41,11 @@ class ExportArgs:
     time: list[float] = field(default_factory=list)
     """Times in [0,1] to export a deformed PLY for."""
     sequence: int = 0
-    """Number of evenly spaced frames of a PLY sequence (0: none)."""
+    """Number of evenly spaced frames of a PLY sequence (0: none); with --format plyseq, of the .zip."""
+    format: Literal["ply", "plyseq", "splatv", "web"] = "ply"
+    """ply: the PLYs above; plyseq: OUT/sequence.zip of --sequence PLYs; splatv: OUT/scene.splatv;
+    web: OUT/web, a static folder that plays the scene in a browser."""
     device: str = "auto"
-
-
-def baked_params(run: TrainedRun, time: float) -> dict[str, torch.Tensor]:
-    """The deformed Gaussians at `time` in PLY parameter form.
-
-    The rasteriser uses the absolute value of each scale (only its square enters the
-    covariance), so a scale pushed below zero by d_scaling is stored as log|s|.
-    """
-    g = run.at_time(time)
-    return {
-        "means": g.means,
-        "scales": torch.log(g.scales.abs().clamp_min(1e-12)),
-        "quats": torch.nn.functional.normalize(g.quats, dim=-1),
-        "opacities": run.params["opacities"],
-        "sh0": run.params["sh0"],
-        "shN": run.params["shN"],
-    }
 
 
 MAX_SEQUENCE = 100_000
@@ -70,20 +66,42 @@ def export_run(args: ExportArgs, console: Console | None = None) -> list[Path]:
         names[name] = t
     if not 0 <= args.sequence <= MAX_SEQUENCE:
         raise ConfigError(f"--sequence must be between 0 and {MAX_SEQUENCE}, got {args.sequence}")
+    if args.format != "ply" and args.time:
+        raise ConfigError(f"--time writes single PLYs: it goes with --format ply, not {args.format}")
+    if args.format == "plyseq" and args.sequence < 2:
+        raise ConfigError("--format plyseq needs --sequence N, the number of frames (at least 2)")
     run = load_run(args.run, args.device)
     if console is not None and not run.finished:
         console.print(f"[yellow]note:[/] {args.run}: {run.progress_label}")
     out = args.out or args.run / "export"
+    if args.format == "plyseq":
+        return [write_plyseq(out / "sequence.zip", run, args.sequence)]
+    if args.format == "splatv":
+        return [export_splatv(run, out / "scene.splatv", console)]
+    if args.format == "web":
+        return [write_web(out / "web", run, load_run_dataset(run.config))]
     written = [write_ply(out / "canonical.ply", run.params)]
-    field_path = out / "field.pt"
-    payload = {"config": dataclasses.asdict(run.config.field_config()), "state_dict": run.field.state_dict()}
-    written.append(write_atomic(field_path, lambda tmp: torch.save(payload, tmp)))
+    if run.field is not None:  # a baked scene has no network
+        payload = {"config": dataclasses.asdict(run.config.field_config()), "state_dict": run.field.state_dict()}
+        written.append(write_atomic(out / "field.pt", lambda tmp: torch.save(payload, tmp)))
     for t in args.time:
-        written.append(write_ply(out / time_file_name(t), baked_params(run, t)))
+        written.append(write_ply(out / time_file_name(t), frame_params(run, t)))
     if args.sequence:
         times = [i / max(args.sequence - 1, 1) for i in range(args.sequence)]
         for i, t in enumerate(track(times, description="PLY sequence", console=console, disable=console is None)):
-            written.append(write_ply(out / "sequence" / f"frame_{i:04d}.ply", baked_params(run, t)))
+            written.append(write_ply(out / "sequence" / f"frame_{i:04d}.ply", frame_params(run, t)))
+    return written
+
+
+def export_splatv(run, path: Path, console: Console | None) -> Path:
+    """splaTV's motion model fitted to the run (or baked scene); the dataset's cameras go along,
+    test views first (the player starts at the first)."""
+    model, kept = fit_splatv(run)
+    dataset = load_run_dataset(run.config)
+    frames = [*dataset.test, *dataset.train]
+    written = write_splatv(path, model, [splatv_camera(f.camera, f.name) for f in frames])
+    if console is not None:
+        console.print(f"splatv: its cubic motion keeps {100 * kept:.2f}% of the field's motion (position variance)")
     return written
 
 

@@ -99,6 +99,8 @@ def render_run(args: RenderArgs, console: Console | None = None) -> dict[str, Pa
     if args.uncertainty_samples and run.config.field != "sde":
         raise ConfigError(f"--uncertainty-samples needs a run of the 'sde' field; {args.run} used '{run.config.field}'")
     check_scene_print(args.run, run.config.data.path)
+    if args.uncertainty_samples and run.field is None:
+        raise ConfigError(f"--uncertainty-samples needs the field's noise; {args.run} is a baked scene (its mean)")
     dataset = load_run_dataset(run.config)
     frames = dataset.test or dataset.train
     if not 0 <= args.sweep_camera < len(frames):

@@ -25,7 +25,12 @@ def _attribute_names(num_rest: int) -> list[str]:
 
 def write_ply(path: str | Path, params: dict[str, torch.Tensor]) -> Path:
     """Write canonical (or deformed) Gaussians; the file appears atomically."""
-    path = Path(path)
+    ply = ply_data(params)
+    return write_atomic(Path(path), lambda tmp: ply.write(str(tmp)))
+
+
+def ply_data(params: dict[str, torch.Tensor]) -> PlyData:
+    """The Gaussians as a PLY document (write it to a path or a binary stream)."""
     means = params["means"].detach().float().cpu().numpy()
     n = means.shape[0]
     shN = params["shN"].detach().float().cpu()
@@ -44,8 +49,7 @@ def write_ply(path: str | Path, params: dict[str, torch.Tensor]) -> Path:
     vertex = np.empty(n, dtype=[(name, "<f4") for name in names])
     for i, name in enumerate(names):
         vertex[name] = data[:, i]
-    ply = PlyData([PlyElement.describe(vertex, "vertex")], byte_order="<")
-    return write_atomic(path, lambda tmp: ply.write(str(tmp)))
+    return PlyData([PlyElement.describe(vertex, "vertex")], byte_order="<")
 
 
 def read_ply(path: str | Path, device: str | torch.device = "cpu") -> dict[str, torch.Tensor]:

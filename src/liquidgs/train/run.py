@@ -72,11 +72,16 @@ class TrainedRun:
 
 
 def load_run(run_dir: str | Path, device: str = "auto") -> TrainedRun:
+    """The run at run_dir, or a baked scene (bake.scene.BakedRun, the same interface, field None)."""
     run_dir = Path(run_dir)
     if not run_dir.exists():
         raise LiquidGSError(f"{run_dir}: does not exist")
     if not run_dir.is_dir():
         raise LiquidGSError(f"{run_dir}: is a file, not a run folder")
+    from liquidgs.bake.scene import is_baked, load_baked  # bake imports this module
+
+    if is_baked(run_dir):  # a baked scene reads like a run, without its network
+        return load_baked(run_dir, resolve_device(device))
     if not (run_dir / CONFIG).is_file():
         raise LiquidGSError(f"{run_dir}: not a liquidgs run folder (no {CONFIG})")
     if not (run_dir / CHECKPOINT).is_file():

@@ -30,7 +30,7 @@ class RunScene:
 
     @property
     def has_noise(self) -> bool:
-        return self.run.config.field == "sde"
+        return self.run.config.field == "sde" and self.run.field is not None  # baked: the mean only
 
     @torch.no_grad()
     def render(self, camera: Camera, time: float) -> torch.Tensor:
@@ -90,7 +90,8 @@ def load_runs(run_dirs: list[Path], device: str = "auto") -> list[RunScene]:
         run = load_run(run_dir, device)
         if not run.finished:
             raise LiquidGSError(f"{run_dir}: not a finished liquidgs run ({run.progress_label})")
-        label = f"{len(scenes) + 1}: {run.config.field} ({run_dir.name})"
+        kind = run.config.field if run.field is not None else f"{run.config.field}, baked"
+        label = f"{len(scenes) + 1}: {kind} ({run_dir.name})"
         scene = RunScene(run, label)
         if scenes and scene.run.config.data.path != scenes[0].run.config.data.path:
             raise LiquidGSError(

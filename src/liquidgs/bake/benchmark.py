@@ -1,0 +1,131 @@
+"""`liquidgs bench bake --run DIR --baked BAKED`: a baked scene against the field it came from.
+
+On the run's test views: PSNR of the baked render against the field's render, the test PSNR of
+each against ground truth (8-bit, as eval scores it) and its change, bytes per Gaussian, the PSNR
+against the field of the splatv model fitted to the baked scene (as the file stores it) and the
+share of the motion it keeps, and the
+render time of each (the same cameras, resolution and Gaussians; the fastest of --repeats passes over
+the views) with the speed-up. Prints one JSON object; --output appends it to a JSONL file.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import time
+from pathlib import Path
+
+import torch
+
+from liquidgs.bake.formats import fit_splatv, parse_splatv, splatv_bytes
+from liquidgs.bake.scene import is_baked, load_baked
+from liquidgs.errors import ConfigError, LiquidGSError
+from liquidgs.eval.metrics import psnr, quantize_8bit
+from liquidgs.render.benchmark import machine_description
+from liquidgs.settings import ArgumentParser
+from liquidgs.train.model import render_frame
+from liquidgs.train.run import load_run, load_run_dataset
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = ArgumentParser(prog="liquidgs bench bake", description=__doc__.splitlines()[0])
+    parser.add_argument("--run", type=Path, required=True, help="the run folder")
+    parser.add_argument("--baked", type=Path, required=True, help="its baked scene (liquidgs bake)")
+    parser.add_argument("--repeats", type=int, default=3, help="timed passes over the test views")
+    parser.add_argument("--threads", type=int, default=0, help="torch intra-op threads (0: torch's default)")
+    parser.add_argument("--output", type=Path, help="also append the record to this JSONL file")
+    return parser
+
+
+def mean(values: list[float]) -> float:
+    return sum(values) / len(values)
+
+
+def timed_pass(render, frames) -> float:
+    """Seconds per frame of one pass over `frames`."""
+    start = time.perf_counter()
+    for frame in frames:
+        render(frame)
+    return (time.perf_counter() - start) / len(frames)
+
+
+@torch.no_grad()
+def measure(run_dir: Path, baked_dir: Path, repeats: int) -> dict:
+    if not is_baked(baked_dir):
+        raise LiquidGSError(f"{baked_dir}: not a baked scene (no baked.json)")
+    run = load_run(run_dir, "cpu")
+    baked = load_baked(baked_dir, "cpu")
+    if baked.params["means"].shape != run.params["means"].shape or baked.iteration != run.iteration:
+        raise LiquidGSError(f"{baked_dir}: not baked from {run_dir} at its iteration {run.iteration}")
+    dataset = load_run_dataset(run.config)
+    frames = dataset.test or dataset.train
+    background = torch.tensor(dataset.background, dtype=torch.float32)
+
+    def field_render(frame):
+        return run.render(frame.camera, frame.time, background).rgb.clamp(0, 1)
+
+    def baked_render(frame):
+        return baked.render(frame.camera, frame.time, background).rgb.clamp(0, 1)
+
+    fitted, motion_kept = fit_splatv(baked)
+    splatv, _ = parse_splatv(splatv_bytes(fitted, []))  # as the file holds it: float16, 8-bit colour
+
+    def splatv_render(frame):
+        g = splatv.at_time(frame.time)
+        return render_frame(g, frame.camera, sh_degree=0, background=background, backend=run.config.backend).rgb
+
+    agreement, field_gt, baked_gt, splatv_agreement = [], [], [], []
+    for frame in frames:
+        a, b = field_render(frame), baked_render(frame)
+        truth = quantize_8bit(frame.image().clamp(0, 1))
+        agreement.append(float(psnr(b, a)))
+        splatv_agreement.append(float(psnr(splatv_render(frame).clamp(0, 1), a)))
+        field_gt.append(float(psnr(quantize_8bit(a), truth)))
+        baked_gt.append(float(psnr(quantize_8bit(b), truth)))
+    field_seconds = min(timed_pass(field_render, frames) for _ in range(repeats))
+    baked_seconds = min(timed_pass(baked_render, frames) for _ in range(repeats))
+    camera = frames[0].camera
+    return {
+        "scene": dataset.scene_name,
+        "field": run.config.field,
+        "preset": run.config.preset,
+        "iteration": run.iteration,
+        "gaussians": int(run.params["means"].shape[0]),
+        "keyframes": baked.manifest["keyframes"],
+        "test_views": len(frames),
+        "resolution": [camera.width, camera.height],
+        "baked_vs_field_psnr": mean(agreement),
+        "baked_vs_field_psnr_min": min(agreement),
+        "field_test_psnr": mean(field_gt),
+        "baked_test_psnr": mean(baked_gt),
+        "test_psnr_change": mean(baked_gt) - mean(field_gt),
+        "bytes_per_gaussian": baked.manifest["bytes_per_gaussian"],
+        "splatv_vs_field_psnr": mean(splatv_agreement),
+        "splatv_motion_kept": motion_kept,
+        "midpoint_max_relative_error": baked.manifest["error"]["max_relative_error"],
+        "gaussians_over_budget": baked.manifest["error"]["gaussians_over_budget"],
+        "field_ms_per_frame": 1000 * field_seconds,
+        "baked_ms_per_frame": 1000 * baked_seconds,
+        "speedup": field_seconds / baked_seconds,
+        "timing": f"fastest of {repeats} passes over the test views, render only (no PNG), backend "
+        f"{run.config.backend}",
+        "machine": machine_description(torch.device("cpu")),
+        "python": platform.python_version(),
+        "torch_version": torch.__version__,
+        "torch_threads": torch.get_num_threads(),
+    }
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.repeats < 1 or args.threads < 0:
+        raise ConfigError("bench bake: need --repeats >= 1 and --threads >= 0")
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    record = measure(args.run, args.baked, args.repeats)
+    print(json.dumps(record), flush=True)
+    if args.output is not None:
+        args.output.parent.mkdir(parents=True, exist_ok=True)
+        with args.output.open("a") as file:
+            file.write(json.dumps(record) + "\n")
+    return 0

@@ -1,0 +1,71 @@
+"""Explicit per-Gaussian motion: keyframes at uniform times and their interpolation.
+
+A keyframe holds, for every Gaussian, the deformed state the field gives at that time, in the
+rasteriser's terms: position [3], unit quaternion wxyz [4] (sign-aligned with the keyframe
+before it, so that interpolating components follows the short arc) and scale [3] (the field's
+std-devs, signed as the field leaves them; the rasteriser squares them). Between keyframes
+every channel follows a uniform Catmull-Rom spline (cubic Hermite with central-difference
+tangents; the two end segments use a mirrored phantom keyframe), and the quaternion is
+renormalised: a cubic nlerp. The same few lines run in the web player (bake/web).
+"""
+
+from __future__ import annotations
+
+import torch
+
+POSITION = slice(0, 3)
+QUATERNION = slice(3, 7)
+SCALE = slice(7, 10)
+CHANNELS = 10
+
+
+def keyframe_times(count: int) -> torch.Tensor:
+    """`count` uniform times covering [0, 1], the capture's normalised time range."""
+    return torch.linspace(0.0, 1.0, count, dtype=torch.float64)
+
+
+def pack_keyframe(means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor) -> torch.Tensor:
+    """[N, CHANNELS]: position, unit quaternion, scale."""
+    return torch.cat([means, torch.nn.functional.normalize(quats, dim=-1), scales], dim=-1)
+
+
+def align_quaternion_signs(keyframes: torch.Tensor) -> torch.Tensor:
+    """q and -q are one rotation: flip each keyframe's quaternion to the hemisphere of the one before."""
+    keyframes = keyframes.clone()
+    for k in range(1, keyframes.shape[0]):
+        dot = (keyframes[k, :, QUATERNION] * keyframes[k - 1, :, QUATERNION]).sum(-1, keepdim=True)
+        keyframes[k, :, QUATERNION] *= torch.where(dot < 0, -1.0, 1.0)
+    return keyframes
+
+
+def interpolate(keyframes: torch.Tensor, time: float) -> torch.Tensor:
+    """The state [N, CHANNELS] at `time` (clamped to [0, 1]) from keyframes [K, N, CHANNELS] at
+    keyframe_times(K); quaternions come out unit length."""
+    count = keyframes.shape[0]
+    if count == 1:
+        return keyframes[0]
+    u = min(max(float(time), 0.0), 1.0) * (count - 1)
+    i = min(int(u), count - 2)
+    f = u - i
+    p1, p2 = keyframes[i], keyframes[i + 1]
+    p0 = keyframes[i - 1] if i > 0 else 2 * p1 - p2
+    p3 = keyframes[i + 2] if i + 2 < count else 2 * p2 - p1
+    f2, f3 = f * f, f * f * f
+    state = 0.5 * (2 * p1 + (p2 - p0) * f + (2 * p0 - 5 * p1 + 4 * p2 - p3) * f2 + (3 * p1 - p0 - 3 * p2 + p3) * f3)
+    quats = torch.nn.functional.normalize(state[:, QUATERNION], dim=-1)
+    return torch.cat([state[:, POSITION], quats, state[:, SCALE]], dim=-1)
+
+
+def state_error(baked: torch.Tensor, truth: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Per Gaussian: (relative error, position error in scene units) of `baked` against `truth`.
+
+    The relative error is the largest of the position error and the largest scale error, both
+    as a fraction of the Gaussian's largest axis in `truth`, and of the rotation error in radians
+    (the angle between the two orientations).
+    """
+    size = truth[:, SCALE].abs().amax(-1).clamp_min(1e-12)
+    position = (baked[:, POSITION] - truth[:, POSITION]).norm(dim=-1)
+    scale = (baked[:, SCALE].abs() - truth[:, SCALE].abs()).abs().amax(-1)
+    cosine = (baked[:, QUATERNION] * truth[:, QUATERNION]).sum(-1).abs().clamp(max=1.0)
+    angle = 2 * torch.acos(cosine)
+    return torch.maximum(torch.maximum(position / size, scale / size), angle), position

@@ -1,0 +1,333 @@
+"""`liquidgs bake`: keyframed motion (bake/motion.py), its distillation within an error budget
+(bake/distil.py) on analytic motions, and a baked tiny run read by render, eval, export and the
+viewer like a run; bad input is one line, exit 2, nothing written."""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+import struct
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from liquidgs.bake.distil import BakeSettings, distil
+from liquidgs.bake.motion import QUATERNION, align_quaternion_signs, interpolate, keyframe_times, pack_keyframe
+from liquidgs.bake.scene import BakedRun
+from liquidgs.eval.metrics import psnr
+from liquidgs.train.model import Deformed
+from liquidgs.train.run import load_run, load_run_dataset
+from tiny_runs import one_line_error, run_cli, snapshot
+
+
+@pytest.fixture(autouse=True)
+def _one_thread(one_torch_thread):
+    yield
+
+
+def axis_angle_quats(angle: torch.Tensor) -> torch.Tensor:
+    """Rotations about z by `angle` [N], wxyz."""
+    zeros = torch.zeros_like(angle)
+    return torch.stack([torch.cos(angle / 2), zeros, zeros, torch.sin(angle / 2)], dim=-1)
+
+
+class AnalyticRun:
+    """A stand-in for a trained run whose Gaussians follow `path(t) -> means [N,3]`."""
+
+    def __init__(self, path, n: int, size: float = 0.1):
+        self.path = path
+        self.n = n
+        self.size = size
+        self.params = {"opacities": torch.zeros(n)}  # opacity 0.5: every Gaussian is checked
+
+    def at_time(self, time: float) -> Deformed:
+        means = self.path(time)
+        scales = torch.full((self.n, 3), self.size)
+        return Deformed(means, axis_angle_quats(torch.full((self.n,), time)), scales, None, None)
+
+
+def keyframes_of(run: AnalyticRun, count: int) -> torch.Tensor:
+    return torch.stack(
+        [pack_keyframe(g.means, g.quats, g.scales) for g in map(run.at_time, keyframe_times(count).tolist())]
+    )
+
+
+def test_spline_passes_through_keyframes_and_reproduces_quadratic_motion():
+    quadratic = AnalyticRun(lambda t: torch.tensor([[t, t * t - t, 2.0]]), 1)
+    keyframes = keyframes_of(quadratic, 9)
+    for t in keyframe_times(9).tolist():
+        assert torch.allclose(interpolate(keyframes, t), keyframes_of(quadratic, 9)[round(t * 8)], atol=1e-6)
+    for t in (0.2, 0.31, 0.5, 0.77):  # interior segments: central-difference tangents are exact for quadratics
+        assert torch.allclose(interpolate(keyframes, t)[:, :3], quadratic.path(t), atol=1e-6)
+    linear = AnalyticRun(lambda t: torch.tensor([[3 * t, -t, 1.0]]), 1)
+    for t in (0.0, 0.05, 0.99, 1.0):  # the end segments' mirrored phantom keyframes are exact for lines
+        assert torch.allclose(interpolate(keyframes_of(linear, 5), t)[:, :3], linear.path(t), atol=1e-6)
+    assert torch.allclose(interpolate(keyframes, 0.43)[:, QUATERNION].norm(dim=-1), torch.ones(1))
+
+
+def test_quaternion_signs_follow_the_keyframe_before():
+    quats = axis_angle_quats(torch.linspace(0, 1, 3))
+    keyframes = torch.zeros(3, 1, 10)
+    keyframes[:, 0, QUATERNION] = quats * torch.tensor([1.0, -1.0, 1.0])[:, None]
+    aligned = align_quaternion_signs(keyframes)
+    assert torch.allclose(aligned[:, 0, QUATERNION], quats)
+    # Without alignment the spline would swing through the opposite hemisphere half-way.
+    halfway = interpolate(aligned, 0.25)[0, QUATERNION]
+    assert torch.allclose(halfway, axis_angle_quats(torch.tensor(0.25)), atol=1e-3)
+
+
+def test_keyframes_double_until_the_budget_holds():
+    wave = AnalyticRun(lambda t: torch.tensor([[0.5 * math.sin(6 * math.pi * t), 0.0, 0.0]]), 1)
+    distilled = distil(wave, BakeSettings(tolerance=0.1, min_keyframes=5, max_keyframes=129))
+    report = distilled.report
+    assert report["gaussians_over_budget"] == 0 and report["max_relative_error"] <= 0.1
+    count = distilled.keyframes.shape[0]
+    assert count in (17, 33, 65)  # 5 keyframes cannot hold three periods within 0.1 of the size
+    coarser = keyframes_of(wave, (count + 1) // 2)
+    mid = (keyframe_times((count + 1) // 2)[:-1] + keyframe_times((count + 1) // 2)[1:]) / 2
+    coarse_error = max(float((interpolate(coarser, t)[:, :3] - wave.path(t)).norm()) for t in mid.tolist())
+    assert coarse_error > 0.1 * wave.size  # the count before it did not hold the budget
+
+
+def test_motion_beyond_the_budget_is_baked_and_located():
+    def jump(t: float) -> torch.Tensor:
+        means = torch.zeros(3, 3)
+        means[1, 0] = 1.0 if t >= 0.6 else 0.0  # Gaussian 1 teleports at t = 0.6; the others rest
+        return means
+
+    distilled = distil(AnalyticRun(jump, 3), BakeSettings(tolerance=0.1, min_keyframes=3, max_keyframes=17))
+    assert distilled.keyframes.shape[0] == 17
+    over = distilled.over_budget
+    assert over and {item["gaussian"] for item in over} == {1}
+    assert all(abs(item["time"] - 0.6) < 0.1 for item in over)
+
+
+@pytest.fixture(scope="module")
+def tiny_run(tiny_mlp_run) -> Path:
+    return tiny_mlp_run
+
+
+@pytest.fixture(scope="module")
+def baked(tiny_run, tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("bake") / "baked"
+    code, _, err = run_cli(["bake", "--run", str(tiny_run), "--out", str(out), "--device", "cpu"])
+    assert code == 0, err
+    return out
+
+
+def test_baked_scene_renders_the_field_without_it(tiny_run, baked):
+    manifest = json.loads((baked / "baked.json").read_text())
+    field_run, baked_run = load_run(tiny_run, "cpu"), load_run(baked, "cpu")
+    assert isinstance(baked_run, BakedRun) and baked_run.field is None
+    assert manifest["gaussians"] == field_run.params["means"].shape[0] == baked_run.keyframes.shape[1]
+    dataset = load_run_dataset(field_run.config)
+    background = torch.tensor(dataset.background)
+    for frame in dataset.test[:3]:  # test times fall between keyframes
+        a = field_run.render(frame.camera, frame.time, background).rgb.clamp(0, 1)
+        b = baked_run.render(frame.camera, frame.time, background).rgb.clamp(0, 1)
+        assert float(psnr(b, a)) > 40.0, frame.name
+
+
+def test_commands_read_a_baked_folder_like_a_run(baked, tmp_path):
+    code, _, err = run_cli(["eval", "--run", str(baked), "--device", "cpu"])
+    assert code == 0, err
+    assert json.loads((baked / "eval.json").read_text())["psnr"] > 10
+    code, _, err = run_cli(["export", "--run", str(baked), "--out", str(tmp_path / "export"), "--time", "0.5"])
+    assert code == 0, err
+    assert sorted(p.name for p in (tmp_path / "export").iterdir()) == ["canonical.ply", "time_0.5000.ply"]
+    frames = ["--sweep-frames", "2", "--orbit-frames", "2"]
+    code, _, err = run_cli(["render", "--run", str(baked), "--out", str(tmp_path / "renders"), *frames])
+    assert code == 0, err
+    assert (tmp_path / "renders" / "sweep.mp4").is_file()
+
+    from liquidgs.viewer.scenes import load_runs
+
+    scene = load_runs([baked])[0]
+    assert not scene.has_noise
+    assert scene.render(scene.dataset.test[0].camera, 0.3).shape[-1] == 3
+
+
+def unfinished_copy(run: Path, tmp_path: Path) -> Path:
+    copy = tmp_path / "unfinished"
+    shutil.copytree(run, copy)
+    (copy / "results.json").unlink()  # results.json is a run's only done marker
+    return copy
+
+
+@pytest.mark.parametrize(
+    "case, expected",
+    [
+        ("missing", "does not exist"),
+        ("not_a_run", "not a liquidgs run folder"),
+        ("unfinished", "bake needs a finished run"),
+        ("baked", "a baked scene, not a run"),
+        ("taken", "already exists"),
+        ("tolerance", "--tolerance must be in (0, 1)"),
+    ],
+)
+def test_bad_input_is_one_line_and_writes_nothing(case, expected, tiny_run, baked, tmp_path, capsys):
+    from liquidgs.cli import main as cli
+
+    out = tmp_path / "out"
+    run, extra = tiny_run, []
+    if case == "missing":
+        run = tmp_path / "nowhere"
+    elif case == "not_a_run":
+        run = tmp_path / "folder"
+        run.mkdir()
+        (run / "notes.txt").write_text("hello")
+    elif case == "unfinished":
+        run = unfinished_copy(tiny_run, tmp_path)
+    elif case == "baked":
+        run = baked
+    elif case == "taken":
+        out.mkdir()
+        (out / "keep.txt").write_text("mine")
+    elif case == "tolerance":
+        extra = ["--tolerance", "0"]
+    before = snapshot(tmp_path, tiny_run)
+    assert cli(["bake", "--run", str(run), "--out", str(out), "--device", "cpu", *extra]) == 2
+    assert expected in one_line_error(capsys)
+    assert snapshot(tmp_path, tiny_run) == before
+
+
+def test_a_failure_while_writing_leaves_no_folder(tiny_run, tmp_path, monkeypatch):
+    from liquidgs.commands import bake as bake_command
+
+    def full_disk(*_args, **_kwargs):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(bake_command.torch, "save", full_disk)
+    few = ["--min-keyframes", "3", "--max-keyframes", "3"]
+    code, _, err = run_cli(["bake", "--run", str(tiny_run), "--out", str(tmp_path / "baked"), *few])
+    assert code == 2 and "no space left" in err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_bench_bake_prints_fidelity_and_speed(tiny_run, baked, tmp_path, capsys):
+    from liquidgs.cli import main as cli
+
+    output = tmp_path / "bench.jsonl"
+    assert (
+        cli(["bench", "bake", "--run", str(tiny_run), "--baked", str(baked), "--repeats", "1", "--output", str(output)])
+        == 0
+    )
+    record = json.loads(capsys.readouterr().out)
+    assert record == json.loads(output.read_text())
+    assert record["baked_vs_field_psnr"] > 40 and abs(record["test_psnr_change"]) < 0.1
+    assert record["field_ms_per_frame"] > 0 and record["baked_ms_per_frame"] > 0
+    assert record["bytes_per_gaussian"] == (baked / "scene.pt").stat().st_size / record["gaussians"]
+    assert cli(["bench", "bake", "--run", str(tiny_run), "--baked", str(tiny_run)]) == 2
+    assert "not a baked scene" in one_line_error(capsys)
+
+
+def test_plyseq_is_a_zip_of_standard_plys_at_evenly_spaced_times(baked, tmp_path):
+    import zipfile
+
+    from liquidgs.gaussians import read_ply
+
+    out = tmp_path / "export"
+    code, _, err = run_cli(["export", "--run", str(baked), "--out", str(out), "--format", "plyseq", "--sequence", "3"])
+    assert code == 0, err
+    with zipfile.ZipFile(out / "sequence.zip") as archive:
+        assert archive.namelist() == ["frame_0000.ply", "frame_0001.ply", "frame_0002.ply"]
+        archive.extractall(tmp_path / "frames")
+    run = load_run(baked, "cpu")
+    for i, time in enumerate((0.0, 0.5, 1.0)):
+        frame = read_ply(tmp_path / "frames" / f"frame_{i:04d}.ply")
+        expected = run.at_time(time)
+        assert torch.allclose(frame["means"], expected.means, atol=1e-6)
+        assert torch.allclose(torch.exp(frame["scales"]), expected.scales.abs(), rtol=1e-5)
+        assert torch.equal(frame["sh0"], run.params["sh0"])
+
+
+def half(word: int, high: bool) -> float:
+    """One float16 of a packHalf2x16 word: the first value in the low 16 bits."""
+    bits = (word >> 16) if high else (word & 0xFFFF)
+    return float(np.array([bits], dtype="<u2").view("<f2")[0])
+
+
+def test_splatv_file_follows_the_layout_splatv_players_read(baked, tmp_path):
+    """Decoded word by word from the format's description (bake/formats.py docstring), not with the
+    writer's record type."""
+    from liquidgs.bake.formats import fit_splatv
+
+    out = tmp_path / "export"
+    code, _, err = run_cli(["export", "--run", str(baked), "--out", str(out), "--format", "splatv"])
+    assert code == 0, err
+    data = (out / "scene.splatv").read_bytes()
+    magic, length = struct.unpack_from("<II", data, 0)
+    assert magic == 0x674B
+    (chunk,) = json.loads(data[8 : 8 + length])
+    assert chunk["type"] == "splat" and chunk["texwidth"] == 4096 and chunk["cameras"][0]["fx"] > 0
+    words = np.frombuffer(data[8 + length :], dtype="<u4")
+    assert words.size * 4 == chunk["size"] == chunk["texwidth"] * chunk["texheight"] * 16
+    run = load_run(baked, "cpu")
+    n = run.params["means"].shape[0]
+    records = words.reshape(-1, 16)
+    assert not records[n:].any()  # the last row's unused slots are zero
+    model, _ = fit_splatv(run)
+    for i in (0, n // 2, n - 1):
+        w = [int(x) for x in records[i]]
+        position = np.array(records[i, :3]).view("<f4")
+        rotation = [half(w[3], False), half(w[3], True), half(w[4], False), half(w[4], True)]
+        scale = [half(w[5], False), half(w[5], True), half(w[6], False)]
+        r, g, b, a = (w[7] >> s & 0xFF for s in (0, 8, 16, 24))
+        motion = [half(w[8 + k // 2], k % 2 == 1) for k in range(9)]
+        omega = [half(w[13], False), half(w[13], True), half(w[14], False), half(w[14], True)]
+        centre, width = half(w[15], False), half(w[15], True)
+        assert np.allclose(position, model.position[i].numpy())
+        assert np.allclose(rotation, model.rotation[i].numpy(), atol=2e-3)
+        assert np.allclose(scale, model.scale[i].numpy(), rtol=2e-3)
+        assert abs(a / 255 - float(model.opacity[i])) <= 0.5 / 255 + 1e-6
+        assert abs(r / 255 - float(model.rgb[i, 0])) <= 0.5 / 255 + 1e-6 and g <= 255 and b <= 255
+        for t in (0.1, 0.8):  # the position and rotation the player computes at time t
+            dt = t - centre
+            m = np.array(motion)
+            p = position + m[0:3] * dt + m[3:6] * dt**2 + m[6:9] * dt**3
+            assert np.allclose(p, model.at_time(t).means[i].numpy(), atol=1e-3)
+            q = np.array(rotation) + np.array(omega) * dt
+            assert np.allclose(q / np.linalg.norm(q), model.at_time(t).quats[i].numpy(), atol=3e-3)
+            assert math.exp(-((dt / width) ** 2)) > 0.999  # a flat temporal opacity
+
+
+def test_splatv_fit_keeps_motion_its_model_can_hold():
+    cubic = AnalyticRun(lambda t: torch.tensor([[t**3 - t, 0.5 * t * t, 1.0], [0.0, 0.0, 0.0]]), 2)
+    cubic.params["sh0"] = torch.zeros(2, 1, 3)
+    from liquidgs.bake.formats import fit_splatv
+
+    model, kept = fit_splatv(cubic)
+    assert kept == pytest.approx(1.0, abs=1e-9)
+    for t in (0.0, 0.37, 1.0):
+        assert torch.allclose(model.at_time(t).means, cubic.path(t), atol=1e-5)
+        assert torch.allclose(model.at_time(t).quats, axis_angle_quats(torch.full((2,), t)), atol=1e-2)
+    wave = AnalyticRun(lambda t: torch.tensor([[math.sin(8 * math.pi * t), 0.0, 0.0]]), 1)
+    wave.params["sh0"] = torch.zeros(1, 1, 3)
+    assert fit_splatv(wave)[1] < 0.5  # four periods: beyond one cubic, and reported as such
+
+
+@pytest.mark.parametrize(
+    "flags, expected",
+    [
+        (["--format", "plyseq"], "--format plyseq needs --sequence N"),
+        (["--format", "splatv", "--time", "0.5"], "--time writes single PLYs"),
+        (["--format", "gif"], "unknown format 'gif'"),
+    ],
+)
+def test_export_format_bad_input_is_one_line(flags, expected, baked, tmp_path, capsys):
+    from liquidgs.cli import main as cli
+
+    assert cli(["export", "--run", str(baked), "--out", str(tmp_path / "x"), *flags]) == 2
+    assert expected in one_line_error(capsys)
+    assert not (tmp_path / "x").exists()
+
+
+def test_viewer_plays_a_baked_folder(baked, capsys):
+    from liquidgs.cli import main as cli
+
+    assert cli(["view", "--run", str(baked), "--port", "0", "--benchmark", "2", "--resolution", "64"]) == 0
+    record = json.loads(capsys.readouterr().out)
+    assert record["scene"] == "1: mlp, baked (baked)" and record["rest"]["fps"] > 0
