@@ -20,6 +20,7 @@ from pathlib import Path
 
 from liquidgs.cli import COMMANDS
 from liquidgs.commands import bench, data, experiment
+from liquidgs.commands.bake import BakeArgs
 from liquidgs.commands.demo import DemoArgs
 from liquidgs.commands.evaluate import EvalArgs
 from liquidgs.commands.export import ExportArgs
@@ -33,7 +34,7 @@ from liquidgs.train.config import TrainConfig, preset_config
 
 # Commands without sub-commands, by the configuration they parse.
 SINGLE = {"demo": DemoArgs, "train": TrainConfig, "eval": EvalArgs, "render": RenderArgs, "export": ExportArgs,
-          "view": ViewArgs}  # fmt: skip
+          "bake": BakeArgs, "view": ViewArgs}  # fmt: skip
 
 
 @dataclasses.dataclass(frozen=True)
