@@ -4,6 +4,7 @@ experiments read. Readers import this package, never the training loop.
     config.yml        the resolved configuration (written first)
     checkpoint.pt     the latest checkpoint (CHECKPOINT_FORMAT)
     per_view.json     each test view's scores at the last iteration
+    failure.json      why a run that failed (diverged, collapsed) stopped; removed when it finishes
     results.json      RunResults (RESULTS_FORMAT), written last: the run's only "done" marker
     tensorboard/      training curves
     eval.json, eval_per_view.json   written by `liquidgs eval`
@@ -18,6 +19,7 @@ from liquidgs.train.run_folder.layout import (
     CONFIG,
     EVAL,
     EVAL_PER_VIEW,
+    FAILURE,
     LOCK_NAME,
     PER_VIEW,
     RESULTS,
@@ -34,6 +36,7 @@ from liquidgs.train.run_folder.records import (
     read_checkpoint,
     read_results,
     write_checkpoint,
+    write_failure,
     write_per_view,
     write_results,
 )
@@ -45,6 +48,7 @@ __all__ = [
     "CONFIG",
     "EVAL",
     "EVAL_PER_VIEW",
+    "FAILURE",
     "LOCK_NAME",
     "PER_VIEW",
     "RESULTS",
@@ -60,6 +64,7 @@ __all__ = [
     "run_folder_lock",
     "stale_temporaries",
     "write_checkpoint",
+    "write_failure",
     "write_per_view",
     "write_results",
     "writer_pid",

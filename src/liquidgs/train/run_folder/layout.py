@@ -11,7 +11,9 @@ CHECKPOINT = "checkpoint.pt"
 PER_VIEW = "per_view.json"
 RESULTS = "results.json"
 """Written last: the run's only "done" marker."""
-RUN_FILES = (CONFIG, CHECKPOINT, PER_VIEW, RESULTS)
+FAILURE = "failure.json"
+"""Why the run stopped, when it failed (divergence, collapse): its checkpoint is kept, no results."""
+RUN_FILES = (CONFIG, CHECKPOINT, PER_VIEW, RESULTS, FAILURE)
 """What the trainer writes into a run folder (besides TENSORBOARD), each atomically."""
 TENSORBOARD = "tensorboard"
 EVAL = "eval.json"

@@ -13,7 +13,7 @@ import torch
 from liquidgs.atomic import write_atomic, write_json_atomic
 from liquidgs.errors import LiquidGSError
 from liquidgs.gaussians import PARAM_KEYS
-from liquidgs.train.run_folder.layout import CHECKPOINT, RESULTS
+from liquidgs.train.run_folder.layout import CHECKPOINT, FAILURE, RESULTS
 
 RESULTS_FORMAT = "liquidgs-results-1"
 """A results.json without a format was written before the format was recorded: it is this one."""
@@ -133,14 +133,20 @@ def write_per_view(path: Path, iteration: int, views: list[dict]) -> Path:
     return write_json_atomic(path, {"iteration": iteration, "views": views})
 
 
+def write_failure(run_dir: Path, checkpoint_iteration: int | None, reason: str) -> Path:
+    """FAILURE: why the run stopped (the error it exited with) and the iteration of the checkpoint
+    it kept (None: none yet)."""
+    return write_json_atomic(run_dir / FAILURE, {"reason": reason, "checkpoint_iteration": checkpoint_iteration})
+
+
 def write_checkpoint(run_dir: Path, contents: dict) -> Path:
     """checkpoint.pt: the trainer's `contents` (tensors, numbers, strings and plain containers
     only, so read_checkpoint can load it safely) under this format's marker."""
     payload = {"format": CHECKPOINT_FORMAT, **contents}
 
     def save(tmp: Path) -> None:
-        # Through a Python file object, so a full disk raises OSError(ENOSPC) and not a
-        # torch stream error that never mentions space.
+        # Through a Python file object, so a full disk raises an OSError(ENOSPC) that write_atomic
+        # finds (torch's zip writer re-raises it as a RuntimeError that never mentions space).
         with open(tmp, "wb") as file:
             torch.save(payload, file)
 
