@@ -15,6 +15,7 @@ import dataclasses
 import shlex
 from pathlib import Path
 
+import torch
 from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
@@ -23,6 +24,7 @@ from liquidgs.eval import describe_lpips
 from liquidgs.fields.config import PRESET_NAMES
 from liquidgs.settings import parse_flag_settings, print_help, wants_help, with_settings
 from liquidgs.train.config import TrainConfig, differing_settings, load_yaml, preset_config, run_folder
+from liquidgs.train.run import training_threads
 from liquidgs.train.run_folder import (
     CONFIG,
     PER_VIEW,
@@ -120,6 +122,7 @@ def train(cfg: TrainConfig, run_dir: Path, console: Console | None = None, datas
     from liquidgs.data import load_dataset
 
     console = console or Console(stderr=True)
+    torch.set_num_threads(training_threads())
     state = check_run_dir(cfg, run_dir)
     if state == "finished" and not cfg.resume:
         console.print(f"{run_dir}: already finished; results in {run_dir / RESULTS}")

@@ -3,6 +3,7 @@ the trainer sets up its device and scene with the same functions."""
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -98,6 +99,22 @@ def load_run(run_dir: str | Path, device: str = "auto") -> TrainedRun:
     iteration = int(state["iteration"])
     finished = (run_dir / RESULTS).is_file() and iteration == cfg.iterations
     return TrainedRun(run_dir, cfg, params, field, int(state["sh_degree"]), iteration, finished)
+
+
+DEFAULT_THREADS = 1
+"""A training process's torch threads unless OMP_NUM_THREADS says otherwise: one, so that a run
+scores the same on any machine and `liquidgs train` and `experiment run` (one run per core) agree."""
+
+
+def training_threads() -> int:
+    """The torch intra-op threads (the compiled CPU kernels use as many) `liquidgs train` runs with:
+    OMP_NUM_THREADS when set, else DEFAULT_THREADS."""
+    value = os.environ.get("OMP_NUM_THREADS", "").strip()
+    if not value:
+        return DEFAULT_THREADS
+    if not value.isdigit() or int(value) < 1:
+        raise ConfigError(f"OMP_NUM_THREADS={value!r}: the thread count must be a positive integer")
+    return int(value)
 
 
 def resolve_device(name: str) -> torch.device:

@@ -523,6 +523,7 @@ class Trainer:
             resolution=[self.dataset.train[0].camera.width, self.dataset.train[0].camera.height],
             perturb=cfg.perturb.settings(),
             views={"train": len(self.dataset.train), "test": len(self.dataset.test)},
+            threads=torch.get_num_threads(),
         )
         write_per_view(self.run_dir / PER_VIEW, cfg.iterations, per_view)
         (self.run_dir / FAILURE).unlink(missing_ok=True)  # of an earlier attempt this resume got past

@@ -61,9 +61,17 @@ class RunResults:
     """The perturbations switched on, by name (data.perturb)."""
     views: dict
     """{"train": n, "test": n}."""
+    threads: int | None = None
+    """torch's intra-op threads, which the compiled CPU kernels use too (train.run.training_threads);
+    None in results written before it was recorded. Some results depend on it (the README says which)."""
 
     def to_json(self) -> dict:
-        return {_json_key(name): value for name, value in dataclasses.asdict(self).items()}
+        """The file's content; a field recorded later and unknown here (None) is left out, as it was."""
+        return {
+            _json_key(name): value
+            for name, value in dataclasses.asdict(self).items()
+            if not (name in _RECORDED_LATER and value is None)
+        }
 
     @classmethod
     def from_json(cls, raw, path: Path) -> RunResults:
@@ -80,11 +88,20 @@ class RunResults:
             if name == "format":
                 continue
             if key not in raw:
+                if name in _RECORDED_LATER:
+                    continue
                 raise LiquidGSError(f"{path}: field '{key}' is missing")
-            if not _is_a(raw[key], types[name]):
-                raise LiquidGSError(f"{path}: field '{key}' is not {_JSON_KINDS[types[name]]}")
+            if raw[key] is None and name in _RECORDED_LATER:
+                continue
+            kind = _RECORDED_LATER.get(name, types[name])
+            if not _is_a(raw[key], kind):
+                raise LiquidGSError(f"{path}: field '{key}' is not {_JSON_KINDS[kind]}")
         return cls(**{name: raw[key] for key, name in names.items() if key in raw})
 
+
+_RECORDED_LATER = {"threads": int}
+"""Fields added to the format after results were written without them, with their kind: absent or
+null means unknown (None)."""
 
 _JSON_KINDS = {
     str: "a string",
