@@ -84,6 +84,15 @@ def test_the_collapse_check_of_an_evaluation():
     assert collapse_reason(summary(18.7, 19.7, flat=0), learned=False) is None
 
 
+def test_a_run_too_short_to_beat_the_background_finishes_with_a_note(puppet_scene, tmp_path, capsys):
+    """8 steps leave the puppet worse than an empty render (18.7 vs 19.7 dB): not a collapse (it never
+    learned), but the user is told."""
+    flags = tiny_flags({"iterations": 8, "eval.start": 8})
+    assert cli(["train", "--data", str(puppet_scene), "--field", "static", "--out", str(tmp_path / "r"), *flags]) == 0
+    assert "is no better than the background alone" in " ".join(capsys.readouterr().err.split())  # rich wraps
+    assert (tmp_path / "r" / "results.json").is_file()
+
+
 def test_the_guard_stops_training_that_falls_back_to_the_background(puppet_scene, tmp_path):
     args = ["--data", str(puppet_scene), "--field", "mlp", "--out", str(tmp_path), *tiny_flags()]
     cfg, run_dir = resolve_config(args)

@@ -21,6 +21,7 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, Ti
 
 from liquidgs.errors import ConfigError
 from liquidgs.eval import describe_lpips
+from liquidgs.eval.collapse import below_background_note
 from liquidgs.fields.config import PRESET_NAMES
 from liquidgs.settings import parse_flag_settings, print_help, wants_help, with_settings
 from liquidgs.train.config import TrainConfig, differing_settings, load_yaml, preset_config, run_folder
@@ -163,6 +164,9 @@ def train(cfg: TrainConfig, run_dir: Path, console: Console | None = None, datas
         f"{describe_lpips(final)}  ({results.num_gaussians} Gaussians, "
         f"{results.train_seconds:.0f} s) -> {run_dir}"
     )
+    note = below_background_note(final)  # a collapse would have failed the run: this one never learned
+    if note:
+        console.print(f"[yellow]note:[/] {note}")
     return results
 
 

@@ -47,3 +47,14 @@ def collapse_reason(summary: dict, learned: bool) -> str | None:
             f"background-only image {summary['background_psnr']:.2f} dB"
         )
     return None
+
+
+def below_background_note(summary: dict) -> str | None:
+    """For a run that finished without having learned (collapse_reason's `learned` false): a note
+    when its test PSNR is still no better than the background alone, else None."""
+    if "background_psnr" not in summary or summary["psnr"] >= summary["background_psnr"] + BACKGROUND_MARGIN_DB:
+        return None
+    return (
+        f"the final test PSNR ({summary['psnr']:.2f} dB) is no better than the background alone "
+        f"({summary['background_psnr']:.2f} dB): the run is too short to have learned the scene"
+    )
