@@ -18,6 +18,7 @@ from liquidgs.commands.train import resolve_config
 from liquidgs.data import generate_synthetic
 from liquidgs.errors import LiquidGSError
 from liquidgs.eval.collapse import collapse_reason
+from liquidgs.train.run import load_run
 from liquidgs.train.run_folder import LOCK_NAME, run_folder_lock, write_checkpoint
 from liquidgs.train.trainer import RunCollapsed, Trainer
 from shared_data import use_optional_lpips
@@ -117,6 +118,7 @@ def test_a_field_learning_rate_that_blacks_out_the_scene_is_a_failed_run(puppet_
     assert json.loads((out / "failure.json").read_text()) == record
     assert cli(["train", "--out", str(out), "--resume"]) == 2  # resumed: evaluated again, failed again
     assert "every test render is one flat colour" in one_line_error(capsys)
+    assert load_run(out).progress_label == f"failed run (why: {out / 'failure.json'}): checkpoint at iteration 40"
 
 
 def test_final_renders_that_are_all_background_are_never_a_finished_run(

@@ -16,7 +16,7 @@ from liquidgs.fields import build_field
 from liquidgs.gaussians import PARAM_KEYS
 from liquidgs.train.config import TrainConfig, load_yaml
 from liquidgs.train.model import Deformed, deform, render_frame
-from liquidgs.train.run_folder import CHECKPOINT, CONFIG, RESULTS, read_checkpoint
+from liquidgs.train.run_folder import CHECKPOINT, CONFIG, FAILURE, RESULTS, read_checkpoint
 
 
 @dataclass
@@ -35,6 +35,8 @@ class TrainedRun:
         """Where the checkpoint stands: readers accept runs in progress but say so."""
         if self.finished:
             return f"finished run, iteration {self.iteration}"
+        if (self.run_dir / FAILURE).is_file():
+            return f"failed run (why: {self.run_dir / FAILURE}): checkpoint at iteration {self.iteration}"
         return f"unfinished run: checkpoint at iteration {self.iteration} of {self.config.iterations}"
 
     @property
