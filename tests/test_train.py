@@ -177,16 +177,20 @@ def test_field_learning_rate_100x_too_high_is_still_caught(globe_scene, tmp_path
     assert not (out / "results.json").exists()
 
 
+EMPTY_PSNR = 0.0
+"""A background-only PSNR below every training PSNR of the drop guard's tests: only the drop speaks."""
+
+
 def test_psnr_collapse_is_detected(small_scene, tmp_path):
     cfg, run_dir = resolve_config(["--data", str(small_scene), "--out", str(tmp_path / "r"), *SMOKE_FLAGS])
     trainer = Trainer(cfg, run_dir)
     for step in range(1, 200):
-        trainer._guard_divergence(step, 25.0)
+        trainer._guard_divergence(step, 25.0, EMPTY_PSNR)
     with pytest.raises(
         TrainingDiverged, match=r"training PSNR collapsed at iteration 2[0-2]\d \(\d+.\d dB, best 25.0 dB\);"
     ):
         for step in range(200, 400):
-            trainer._guard_divergence(step, 5.0)
+            trainer._guard_divergence(step, 5.0, EMPTY_PSNR)
 
 
 def test_guard_measures_from_the_last_scheduled_disturbance(small_scene, tmp_path):
@@ -197,26 +201,26 @@ def test_guard_measures_from_the_last_scheduled_disturbance(small_scene, tmp_pat
     n = trainer.params["means"].shape[0]
     quiet = {"reset": 0}
     for step in range(1, 600):
-        trainer._guard_divergence(step, 30.0)
+        trainer._guard_divergence(step, 30.0, EMPTY_PSNR)
         assert trainer._scheduled_disturbance(step, False, n, quiet) is None or step == cfg.warmup
     assert trainer._scheduled_disturbance(600, False, n, {"reset": 1}) == "opacity reset"
     trainer._start_grace(600, "opacity reset")
     for step in range(601, 660):  # 12 dB, back to 30 dB over 40 steps
-        trainer._guard_divergence(step, min(30.0, 12.0 + 18.0 * (step - 601) / 40))
+        trainer._guard_divergence(step, min(30.0, 12.0 + 18.0 * (step - 601) / 40), EMPTY_PSNR)
     with pytest.raises(
         TrainingDiverged, match=r"at iteration 6\d\d \(1\d.\d dB, best 2\d.\d dB since the opacity reset at"
     ):
         for step in range(660, 900):  # inside the window: measured against the recovered level
-            trainer._guard_divergence(step, 5.0)
+            trainer._guard_divergence(step, 5.0, EMPTY_PSNR)
 
     trainer = Trainer(cfg, run_dir)
     for step in range(1, 600):
-        trainer._guard_divergence(step, 30.0)
+        trainer._guard_divergence(step, 30.0, EMPTY_PSNR)
     trainer._start_grace(600, "end of warm-up")
     for step in range(601, 700):  # never recovers: at the window's end the run's best applies again
-        trainer._guard_divergence(step, 12.0)
+        trainer._guard_divergence(step, 12.0, EMPTY_PSNR)
     with pytest.raises(TrainingDiverged, match=r"collapsed at iteration 701 \(12.0 dB, best 30.0 dB\);"):
-        trainer._guard_divergence(701, 12.0)
+        trainer._guard_divergence(701, 12.0, EMPTY_PSNR)
 
     # The other scheduled disturbances, and a densification step that is not a burst.
     assert trainer._scheduled_disturbance(300, True, n, quiet) == "SH degree step"

@@ -61,11 +61,24 @@ def write_atomic(path: str | Path, writer: Callable[[Path], None]) -> Path:
     except BaseException as err:
         if tmp is not None:
             tmp.unlink(missing_ok=True)
-        if isinstance(err, OSError) and err.errno in _DISK_FULL:
+        if disk_full(err):
             kept = "the previous file is kept" if path.exists() else "nothing was written"
             raise LiquidGSError(f"no space left on {path.parent} while writing {path.name}; {kept}") from None
         raise
     return path
+
+
+def disk_full(err: BaseException) -> bool:
+    """Whether `err` is, or was raised while handling, a full disk or quota: torch's zip writer
+    turns the OSError(ENOSPC) of its file into a RuntimeError ("unexpected pos") raised in its
+    except clause, so the OSError is only the RuntimeError's context."""
+    seen: set[int] = set()
+    while err is not None and id(err) not in seen:
+        if isinstance(err, OSError) and err.errno in _DISK_FULL:
+            return True
+        seen.add(id(err))
+        err = err.__cause__ or err.__context__
+    return False
 
 
 def write_text_atomic(path: str | Path, text: str) -> Path:

@@ -18,14 +18,17 @@ import dataclasses
 import shlex
 from pathlib import Path
 
+import torch
 from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
 from liquidgs.errors import ConfigError
 from liquidgs.eval import describe_lpips
+from liquidgs.eval.collapse import below_background_note
 from liquidgs.fields.config import PRESET_NAMES
 from liquidgs.settings import parse_flag_settings, print_help, wants_help, with_settings
 from liquidgs.train.config import TrainConfig, differing_settings, load_yaml, preset_config, run_folder
+from liquidgs.train.run import training_threads
 from liquidgs.train.run_folder import (
     CONFIG,
     PER_VIEW,
@@ -133,6 +136,7 @@ def train(cfg: TrainConfig, run_dir: Path, console: Console | None = None, datas
     from liquidgs.data import load_dataset
 
     console = console or Console(stderr=True)
+    torch.set_num_threads(training_threads())
     state = check_run_dir(cfg, run_dir)
     if state == "finished" and not cfg.resume:
         console.print(f"{run_dir}: already finished; results in {run_dir / RESULTS}")
@@ -174,6 +178,9 @@ def train(cfg: TrainConfig, run_dir: Path, console: Console | None = None, datas
         f"{describe_lpips(final)}  ({results.num_gaussians} Gaussians, "
         f"{results.train_seconds:.0f} s) -> {run_dir}"
     )
+    note = below_background_note(final)  # a collapse would have failed the run: this one never learned
+    if note:
+        console.print(f"[yellow]note:[/] {note}")
     return results
 
 

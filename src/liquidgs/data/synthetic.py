@@ -19,6 +19,8 @@ from __future__ import annotations
 import io
 import json
 import math
+import os
+import shutil
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -28,8 +30,9 @@ import numpy as np
 import torch
 from PIL import Image
 
+from liquidgs.atomic import disk_full
 from liquidgs.cameras import DNERF_CAMERA_ANGLE_X, centred_intrinsics, focal_from_fov
-from liquidgs.errors import ConfigError
+from liquidgs.errors import ConfigError, LiquidGSError
 
 CAMERA_RADIUS = 4.0
 ELEVATION_RANGE = (math.radians(-20.0), math.radians(75.0))
@@ -418,10 +421,19 @@ def moving_mask(
     return changed > MOVING_THRESHOLD
 
 
+LAYOUTS = ("dnerf", "nerfies")
+"""The folders a generated scene has: the same views in the D-NeRF and in the Nerfies layout."""
+
+
 def generate_synthetic(
     name: str, out_dir: str | Path, size: int = 128, frames: int = 80, seed: int = 0, supersample: int = 2
 ) -> Path:
-    """Render scene `name` and write it to out_dir/dnerf and out_dir/nerfies; returns out_dir."""
+    """Render scene `name` and write it to out_dir/dnerf and out_dir/nerfies; returns out_dir.
+
+    The scene is rendered into a temporary folder beside out_dir and moved into place when
+    complete, so a failure (a full disk, Ctrl-C) leaves no partial scene; a scene already at
+    out_dir is replaced whole or, on failure, kept.
+    """
     if name not in SCENES:
         raise ConfigError(f"unknown synthetic scene '{name}' (choose from {', '.join(SYNTHETIC_SCENES)})")
     if size < 8 or frames < 8 or supersample < 1:
@@ -429,7 +441,31 @@ def generate_synthetic(
             f"synthetic scene: need size >= 8, frames >= 8, supersample >= 1 (got {size}, {frames}, {supersample})"
         )
     out = Path(out_dir)
-    dnerf, nerfies = out / "dnerf", out / "nerfies"
+    tmp = out.with_name(f".{out.name}.tmp-{os.getpid()}")
+    try:
+        shutil.rmtree(tmp, ignore_errors=True)
+        _write_scene(name, tmp, size, frames, seed, supersample)
+        if not out.exists():
+            os.replace(tmp, out)
+            return out
+        for layout in LAYOUTS:  # into an existing folder: each layout replaced whole
+            if (out / layout).exists():
+                os.replace(out / layout, tmp / f"replaced-{layout}")
+            os.replace(tmp / layout, out / layout)
+    except BaseException as err:
+        shutil.rmtree(tmp, ignore_errors=True)
+        if disk_full(err):
+            kept = "the previous scene is kept" if out.exists() else "nothing was written"
+            raise LiquidGSError(
+                f"no space left on {out.parent} while writing the synthetic scene {out}; {kept}"
+            ) from None
+        raise
+    shutil.rmtree(tmp)
+    return out
+
+
+def _write_scene(name: str, out: Path, size: int, frames: int, seed: int, supersample: int) -> None:
+    dnerf, nerfies = (out / layout for layout in LAYOUTS)
     for folder in (
         dnerf / "train",
         dnerf / "val",
@@ -501,4 +537,3 @@ def generate_synthetic(
     )
     points = surface_points(scene_primitives(name, 0.0), POINT_COUNT, rng)
     np.save(nerfies / "points.npy", points.astype(np.float32))
-    return out

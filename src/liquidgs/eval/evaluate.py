@@ -9,6 +9,7 @@ from typing import Protocol
 import torch
 
 from liquidgs.errors import ConfigError
+from liquidgs.eval.collapse import background_psnr, is_flat
 from liquidgs.eval.lpips import LPIPS, LPIPSUnavailable
 from liquidgs.eval.metrics import psnr, quantize_8bit, ssim
 
@@ -40,6 +41,7 @@ def evaluate_views(
     lpips: LPIPS | None,
     lpips_error: str | None = None,
     quantize: bool = True,
+    background: torch.Tensor | None = None,
 ) -> tuple[dict[str, object], list[dict[str, object]]]:
     """Score ``render_fn(frame)`` against ``frame.image()`` for every frame.
 
@@ -47,7 +49,9 @@ def evaluate_views(
     ``quantize``, passed through the 8-bit PNG round trip the reference's metrics script
     sees. ``lpips=None`` leaves LPIPS out; ``lpips_error`` then says why (e.g. the message of
     :class:`~liquidgs.eval.lpips.LPIPSUnavailable`, "LPIPS-VGG unavailable: ...") and lands in
-    the summary, which also says that no other backbone stood in for it.
+    the summary, which also says that no other backbone stood in for it. With ``background``
+    (RGB), each view also records the background-only image's PSNR and whether the render is
+    one flat colour (eval.collapse), and the summary their mean and count.
 
     Returns ``(summary, per_view)``: the summary holds psnr/ssim/lpips means with ``*_std``
     (sample std), ``n_views``, ``quantized_8bit`` and either the ``lpips_*`` description or
@@ -71,15 +75,19 @@ def evaluate_views(
                     score = lpips(render, truth).item()
                 except LPIPSUnavailable as err:  # images too small for its network: reported, not a crash
                     lpips, lpips_error = None, str(err)
-            per_view.append(
-                {
-                    "name": frame.name,
-                    "time": float(frame.time),
-                    "psnr": psnr(render, truth).item(),
-                    "ssim": ssim(render, truth).item(),
-                    "lpips": score,
-                }
-            )
+            view = {
+                "name": frame.name,
+                "time": float(frame.time),
+                "psnr": psnr(render, truth).item(),
+                "ssim": ssim(render, truth).item(),
+                "lpips": score,
+            }
+            if background is not None:
+                empty = background.to(truth).expand_as(truth)
+                empty = quantize_8bit(empty) if quantize else empty
+                view["background_psnr"] = background_psnr(truth, empty)
+                view["flat"] = is_flat(render, truth)
+            per_view.append(view)
     if lpips is None:
         for view in per_view:
             view["lpips"] = None
@@ -95,6 +103,9 @@ def evaluate_views(
         # No backbone stands in for a missing one: a score of another backbone is not comparable.
         reason = lpips_error or "no LPIPS model was given"
         summary["lpips_unavailable"] = f"{reason}; no other LPIPS backbone was used instead"
+    if background is not None:
+        summary["background_psnr"] = math.fsum(view["background_psnr"] for view in per_view) / len(per_view)
+        summary["flat_views"] = sum(view["flat"] for view in per_view)
     summary["n_views"] = len(per_view)
     summary["quantized_8bit"] = quantize
     return summary, per_view

@@ -133,11 +133,12 @@ def default_parallel() -> int:
 
 
 def _slot_environments(parallel: int) -> list[dict[str, str]]:
+    """Each slot's GPU. On a CPU a run takes the threads `liquidgs train` takes by hand in the
+    same shell (train.run.training_threads), so a spec's run and the same run by hand agree."""
     gpus = _gpu_count()
     if gpus:
         return [{"CUDA_VISIBLE_DEVICES": str(slot % gpus)} for slot in range(parallel)]
-    threads = max(1, (os.cpu_count() or 1) // parallel)
-    return [{"OMP_NUM_THREADS": str(threads)} if parallel > 1 else {} for _ in range(parallel)]
+    return [{} for _ in range(parallel)]
 
 
 def run_local(

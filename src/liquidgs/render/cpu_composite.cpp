@@ -92,14 +92,6 @@ template <typename P> typename P::S lane_sum(typename P::V v) {
     return sum;
 }
 
-int thread_index() {
-#ifdef _OPENMP
-    return omp_get_thread_num();
-#else
-    return 0;
-#endif
-}
-
 struct TileGeometry {
     int tile_size, tiles_x, width, height;
     int pixels() const { return tile_size * tile_size; }
@@ -193,20 +185,26 @@ void backward(const typename P::S* means2d, const typename P::S* conics, const t
               const typename P::S* features, const int64_t* gaussian_ids, const int64_t* tile_starts,
               const int64_t* tile_counts, const int64_t* tile_order, int64_t n_tiles, TileGeometry g,
               const typename P::S* transmittance, const int32_t* last_index, const typename P::S* grad_features,
-              const typename P::S* grad_alpha, int64_t n_gaussians, typename P::S* thread_grads) {
+              const typename P::S* grad_alpha, int64_t n_gaussians, int slices, typename P::S* slice_grads) {
     using S = typename P::S;
     using V = typename P::V;
     using M = typename P::M;
     using L = Limits<P>;
     constexpr int kMaxVectors = kMaxTileSize * kMaxTileSize / P::lanes;
-    (void)tile_counts;
-    // Round-robin over the tiles (busiest first): a fixed tile-to-thread assignment, so each
-    // thread's sums, and their total, come out the same on every run with the same threads.
-#pragma omp parallel for schedule(static, 1)
-    for (int64_t i = 0; i < n_tiles; ++i) {
-        const int64_t tile = tile_order[i];
+    (void)tile_order;
+    (void)n_tiles;
+    // The image's tiles, in raster order, are cut into a fixed number of bands (slices), each
+    // with its own sums and its tiles taken in order; the slices are then added in order. The
+    // threads only share out the slices, so the gradients are the same bits for any thread
+    // count; a band touches mostly its own Gaussians, so its sums stay in cache.
+    const int64_t row_values = n_gaussians * kRow;
+    const int64_t all_tiles = static_cast<int64_t>(g.tiles_x) * ((g.height + g.tile_size - 1) / g.tile_size);
+#pragma omp parallel for schedule(dynamic, 1)
+    for (int slice = 0; slice < slices; ++slice)
+    for (int64_t tile = all_tiles * slice / slices; tile < all_tiles * (slice + 1) / slices; ++tile) {
+        if (tile_counts[tile] == 0) continue;
         const int vectors = g.pixels() / P::lanes;
-        S* grads = thread_grads + static_cast<int64_t>(thread_index()) * n_gaussians * kRow;
+        S* grads = slice_grads + slice * row_values;
         V px[kMaxVectors], py[kMaxVectors], T[kMaxVectors], T_final[kMaxVectors], behind[kMaxVectors];
         V g_alpha[kMaxVectors], g_out[kFeatures][kMaxVectors];
         M last[kMaxVectors], inside[kMaxVectors];
@@ -271,6 +269,13 @@ void backward(const typename P::S* means2d, const typename P::S* conics, const t
             out[11] += lane_sum<P>(abs_gy);
         }
     }
+    // The total into the first slice.
+#pragma omp parallel for schedule(static)
+    for (int64_t v = 0; v < row_values; ++v) {
+        S total = slice_grads[v];
+        for (int slice = 1; slice < slices; ++slice) total += slice_grads[slice * row_values + v];
+        slice_grads[v] = total;
+    }
 }
 
 // Counting sort of (tile, Gaussian) pairs by tile; Gaussians arrive front to back, so each
@@ -331,11 +336,11 @@ void liquidgs_bin_tiles(const int64_t* depth_order, const int64_t* tile_box, int
         const int64_t* gaussian_ids, const int64_t* tile_starts, const int64_t* tile_counts,                      \
         const int64_t* tile_order, int64_t n_tiles, int tile_size, int tiles_x, int width, int height,           \
         const P::S* transmittance, const int32_t* last_index, const P::S* grad_features, const P::S* grad_alpha, \
-        int64_t n_gaussians, P::S* thread_grads, int threads) {                                                                            \
+        int64_t n_gaussians, int slices, P::S* slice_grads, int threads) {                                        \
         set_threads(threads);                                                                                       \
         backward<P>(means2d, conics, opacities, features, gaussian_ids, tile_starts, tile_counts, tile_order,      \
                     n_tiles, TileGeometry{tile_size, tiles_x, width, height}, transmittance, last_index,           \
-                    grad_features, grad_alpha, n_gaussians, thread_grads);                                                         \
+                    grad_features, grad_alpha, n_gaussians, slices, slice_grads);                                  \
     }
 
 LIQUIDGS_EXPORT(F32, f32)

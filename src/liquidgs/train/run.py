@@ -3,6 +3,7 @@ the trainer sets up its device and scene with the same functions."""
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -15,7 +16,7 @@ from liquidgs.fields import build_field
 from liquidgs.gaussians import PARAM_KEYS
 from liquidgs.train.config import TrainConfig, load_yaml
 from liquidgs.train.model import Deformed, deform, render_frame
-from liquidgs.train.run_folder import CHECKPOINT, CONFIG, RESULTS, read_checkpoint
+from liquidgs.train.run_folder import CHECKPOINT, CONFIG, FAILURE, RESULTS, read_checkpoint
 
 
 @dataclass
@@ -34,6 +35,8 @@ class TrainedRun:
         """Where the checkpoint stands: readers accept runs in progress but say so."""
         if self.finished:
             return f"finished run, iteration {self.iteration}"
+        if (self.run_dir / FAILURE).is_file():
+            return f"failed run (why: {self.run_dir / FAILURE}): checkpoint at iteration {self.iteration}"
         return f"unfinished run: checkpoint at iteration {self.iteration} of {self.config.iterations}"
 
     @property
@@ -103,6 +106,22 @@ def load_run(run_dir: str | Path, device: str = "auto") -> TrainedRun:
     iteration = int(state["iteration"])
     finished = (run_dir / RESULTS).is_file() and iteration == cfg.iterations
     return TrainedRun(run_dir, cfg, params, field, int(state["sh_degree"]), iteration, finished)
+
+
+DEFAULT_THREADS = 1
+"""A training process's torch threads unless OMP_NUM_THREADS says otherwise: one, so that a run
+scores the same on any machine and `liquidgs train` and `experiment run` (one run per core) agree."""
+
+
+def training_threads() -> int:
+    """The torch intra-op threads (the compiled CPU kernels use as many) `liquidgs train` runs with:
+    OMP_NUM_THREADS when set, else DEFAULT_THREADS."""
+    value = os.environ.get("OMP_NUM_THREADS", "").strip()
+    if not value:
+        return DEFAULT_THREADS
+    if not value.isdigit() or int(value) < 1:
+        raise ConfigError(f"OMP_NUM_THREADS={value!r}: the thread count must be a positive integer")
+    return int(value)
 
 
 def resolve_device(name: str) -> torch.device:

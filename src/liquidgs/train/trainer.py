@@ -21,6 +21,7 @@ from liquidgs.data import SceneDataset, spread_extent
 from liquidgs.data.scene import MIN_CAMERA_EXTENT
 from liquidgs.errors import ConfigError, LiquidGSError
 from liquidgs.eval import LPIPS, LPIPSUnavailable, evaluate_views, ssim
+from liquidgs.eval.collapse import BACKGROUND_MARGIN_DB, LEARNED_MARGIN_DB, background_psnr, collapse_reason
 from liquidgs.eval.metrics import MIN_MSE, psnr_from_mse
 from liquidgs.fields import build_field
 from liquidgs.gaussians import PARAM_KEYS, init_from_points, init_random_box
@@ -34,11 +35,13 @@ from liquidgs.train.run_folder import (
     CAMERAS_REFINED,
     CHECKPOINT,
     CONFIG,
+    FAILURE,
     PER_VIEW,
     TENSORBOARD,
     RunResults,
     read_checkpoint,
     write_checkpoint,
+    write_failure,
     write_per_view,
     write_results,
 )
@@ -56,8 +59,17 @@ GUARD_GRACE = 100
 DENSIFY_BURST_FRACTION = 0.25
 
 
+def _smooth(average: float | None, value: float) -> float:
+    """The guard's exponential moving average (None: starting over)."""
+    return value if average is None else 0.95 * average + 0.05 * value
+
+
 class TrainingDiverged(LiquidGSError):
     pass
+
+
+class RunCollapsed(TrainingDiverged):
+    """The renders collapsed (eval.collapse): the run is failed, never recorded as finished."""
 
 
 class FieldGroupsChanged(LiquidGSError):
@@ -86,6 +98,10 @@ class TrainState:
     camera_stack: list[int] = field(default_factory=list)
     psnr_ema: float | None = None
     best_psnr_ema: float = -math.inf
+    background_psnr_ema: float | None = None
+    """The same smoothing of each step's background-only image's PSNR (eval.collapse)."""
+    best_margin: float = -math.inf
+    """Best psnr_ema - background_psnr_ema: how far training once was above an empty render."""
     guard_samples: int = 0
     """Steps in psnr_ema since the guard last started over (at a scheduled disturbance)."""
     grace_until: int = 0
@@ -291,7 +307,8 @@ class Trainer:
         with torch.no_grad():
             mse = ((out.rgb.detach().clamp(0, 1) - gt) ** 2).mean()
             train_psnr = float(psnr_from_mse(mse.clamp_min(MIN_MSE)))
-        self._guard_divergence(step, train_psnr)
+            empty_psnr = background_psnr(gt, self.background)
+        self._guard_divergence(step, train_psnr, empty_psnr)
         disturbance = self._scheduled_disturbance(step, sh_raised, n_before, report)
         if disturbance:
             self._start_grace(step, disturbance)
@@ -321,17 +338,23 @@ class Trainer:
         partial recovery still stops the run); after them, training must be back within reach of
         the run's best, or it did not recover and stops then."""
         s = self.state
-        s.psnr_ema, s.guard_samples = None, 0
+        s.psnr_ema, s.background_psnr_ema, s.guard_samples = None, None, 0
         s.grace_until, s.grace_best = step + GUARD_GRACE, -math.inf
         s.grace_since = f"the {disturbance} at iteration {step}"
 
-    def _guard_divergence(self, step: int, train_psnr: float) -> None:
+    def _guard_divergence(self, step: int, train_psnr: float, empty_psnr: float) -> None:
+        """Stop a run whose smoothed training PSNR collapsed: by divergence_drop_db below its best
+        (since the latest scheduled disturbance), or, outside the recovery windows, back to no
+        better than the background alone (`empty_psnr`, this view's) after it had been better."""
         s = self.state
-        s.psnr_ema = train_psnr if s.psnr_ema is None else 0.95 * s.psnr_ema + 0.05 * train_psnr
+        s.psnr_ema = _smooth(s.psnr_ema, train_psnr)
+        s.background_psnr_ema = _smooth(s.background_psnr_ema, empty_psnr)
         s.guard_samples += 1
         if s.guard_samples < GUARD_SETTLE:
             return
         s.best_psnr_ema = max(s.best_psnr_ema, s.psnr_ema)
+        margin = s.psnr_ema - s.background_psnr_ema
+        s.best_margin = max(s.best_margin, margin)
         if step <= s.grace_until:
             s.grace_best = max(s.grace_best, s.psnr_ema)
             best, since = s.grace_best, f" since {s.grace_since}"
@@ -342,9 +365,22 @@ class Trainer:
                 f"training PSNR collapsed at iteration {step} ({s.psnr_ema:.1f} dB, best {best:.1f} dB{since})",
                 " - try a lower field learning rate",
             )
+        learned = s.best_margin >= LEARNED_MARGIN_DB
+        if step >= GUARD_START and step > s.grace_until and learned and margin < BACKGROUND_MARGIN_DB:
+            raise self._diverged(
+                f"training renders collapsed to no better than the background alone at iteration {step} "
+                f"({s.psnr_ema:.1f} dB, background-only {s.background_psnr_ema:.1f} dB, "
+                f"best {s.best_margin:.1f} dB above it)",
+                " - try a lower field learning rate",
+                collapsed=True,
+            )
 
-    def _diverged(self, what: str, advice: str = "") -> TrainingDiverged:
-        return TrainingDiverged(f"{what}; the last good checkpoint in {self.run_dir} is kept{advice}")
+    def _diverged(self, what: str, advice: str = "", collapsed: bool = False) -> TrainingDiverged:
+        kind = RunCollapsed if collapsed else TrainingDiverged
+        if self.checkpoint_iteration is None:
+            return kind(f"{what}; no checkpoint was written yet in {self.run_dir}{advice}")
+        kept = f"the last good checkpoint in {self.run_dir} is kept (iteration {self.checkpoint_iteration})"
+        return kind(f"{what}; {kept}{advice}")
 
     def is_eval_step(self, step: int) -> bool:
         e = self.cfg.eval
@@ -355,6 +391,9 @@ class Trainer:
         """Train from self.state.iteration to cfg.iterations; returns what results.json records."""
         try:
             return self._run(progress)
+        except TrainingDiverged as err:  # the run folder says why it stopped (a resume may retry)
+            write_failure(self.run_dir, self.checkpoint_iteration, str(err))
+            raise
         finally:  # flush the TensorBoard events of a stopped run too
             if self._writer is not None:
                 self._writer.close()
@@ -391,9 +430,12 @@ class Trainer:
                     psnr=stats["psnr"],
                     gaussians=stats["n_gaussians"],
                 )
+            if step == cfg.iterations:
+                self.save_checkpoint()  # before finish() evaluates: a failing evaluation loses no training
+                break
             if self.is_eval_step(step):
                 self.evaluate_and_record(step)
-            if step % cfg.checkpoint_every == 0 or step == cfg.iterations:
+            if step % cfg.checkpoint_every == 0:
                 self.save_checkpoint()
         return self.finish()
 
@@ -406,6 +448,12 @@ class Trainer:
 
     def render_fn(self, frame):
         gaussians = deform(self.params, self.field if self.cfg.field != "static" else None, frame.time)
+        if not all(torch.isfinite(t).all() for t in (gaussians.means, gaussians.quats, gaussians.scales)):
+            mode = "training" if self.field.training else "evaluation"
+            raise self._diverged(
+                f"field '{self.cfg.field}' gives non-finite Gaussians in {mode} mode at iteration "
+                f"{self.state.iteration} (view {frame.name})"
+            )
         return self._render(gaussians, frame).rgb
 
     @torch.no_grad()
@@ -418,6 +466,7 @@ class Trainer:
                 lpips=self.lpips,
                 lpips_error=self.lpips_error,
                 quantize=self.cfg.eval.quantize_8bit,
+                background=self.background,
             )
         finally:
             self.field.train()
@@ -472,6 +521,7 @@ class Trainer:
             # A resume that ends the run at its checkpoint's iteration, which was no evaluation step.
             self.evaluate_and_record(cfg.iterations)
         final = next(e for e in reversed(evaluations) if e["iteration"] == cfg.iterations)
+        self._check_collapse(final)
         best = max(evaluations, key=lambda e: e["psnr"])
         per_view = getattr(self, "_final_per_view", None)
         if per_view is None:  # resumed after the final evaluation but before results.json
@@ -511,10 +561,25 @@ class Trainer:
             perturb=cfg.perturb.settings(),
             views={"train": len(self.dataset.train), "test": len(self.dataset.test)},
             final_aligned=self.evaluate_aligned() if self.cameras is not None else {},
+            threads=torch.get_num_threads(),
         )
         write_per_view(self.run_dir / PER_VIEW, cfg.iterations, per_view)
+        (self.run_dir / FAILURE).unlink(missing_ok=True)  # of an earlier attempt this resume got past
         write_results(self.run_dir, results)
         return results
+
+    def _check_collapse(self, final: dict) -> None:
+        """A final evaluation whose renders collapsed is a failed run, not a result."""
+        if "background_psnr" not in final:  # recorded by a liquidgs from before the check
+            return
+        margins = [e["psnr"] - e["background_psnr"] for e in self.state.evaluations if "background_psnr" in e]
+        learned = max([self.state.best_margin, *margins]) >= LEARNED_MARGIN_DB
+        reason = collapse_reason(final, learned)
+        if reason is not None:
+            raise RunCollapsed(
+                f"the run collapsed: {reason} at iteration {final['iteration']}; not recorded as finished, "
+                f"its checkpoint in {self.run_dir} is kept - try a lower field learning rate"
+            )
 
     # ----------------------------------------------------------------- checkpoints
     def save_checkpoint(self) -> Path:

@@ -5,6 +5,7 @@ experiments read. Readers import this package, never the training loop.
     scene.json        the scene's files, so a changed scene is refused (scene_print.py)
     checkpoint.pt     the latest checkpoint (CHECKPOINT_FORMAT)
     per_view.json     each test view's scores at the last iteration
+    failure.json      why a run that failed (diverged, collapsed) stopped; removed when it finishes
     results.json      RunResults (RESULTS_FORMAT), written last: the run's only "done" marker
     cameras_refined.json  how far camera refinement moved each training camera (runs that refine)
     tensorboard/      training curves
@@ -21,6 +22,7 @@ from liquidgs.train.run_folder.layout import (
     CONFIG,
     EVAL,
     EVAL_PER_VIEW,
+    FAILURE,
     LOCK_NAME,
     PER_VIEW,
     RESULTS,
@@ -38,6 +40,7 @@ from liquidgs.train.run_folder.records import (
     read_checkpoint,
     read_results,
     write_checkpoint,
+    write_failure,
     write_per_view,
     write_results,
 )
@@ -51,6 +54,7 @@ __all__ = [
     "CONFIG",
     "EVAL",
     "EVAL_PER_VIEW",
+    "FAILURE",
     "LOCK_NAME",
     "PER_VIEW",
     "RESULTS",
@@ -69,6 +73,7 @@ __all__ = [
     "scene_print",
     "stale_temporaries",
     "write_checkpoint",
+    "write_failure",
     "write_per_view",
     "write_results",
     "write_scene_print",

@@ -15,7 +15,9 @@ CAMERAS_REFINED = "cameras_refined.json"
 """How far camera refinement moved each training camera (with each checkpoint of a run that refines)."""
 SCENE_PRINT = "scene.json"
 """The files of the scene the run trains on (run_folder.scene_print); absent in older runs."""
-RUN_FILES = (CONFIG, SCENE_PRINT, CHECKPOINT, PER_VIEW, RESULTS, CAMERAS_REFINED)
+FAILURE = "failure.json"
+"""Why the run stopped, when it failed (divergence, collapse): its checkpoint is kept, no results."""
+RUN_FILES = (CONFIG, SCENE_PRINT, CHECKPOINT, PER_VIEW, RESULTS, CAMERAS_REFINED, FAILURE)
 """What the trainer writes into a run folder (besides TENSORBOARD), each atomically."""
 TENSORBOARD = "tensorboard"
 EVAL = "eval.json"

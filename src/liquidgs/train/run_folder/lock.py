@@ -15,6 +15,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
+from liquidgs.atomic import disk_full
 from liquidgs.errors import LiquidGSError
 from liquidgs.train.run_folder.layout import LOCK_NAME
 
@@ -63,8 +64,17 @@ def _acquire(lock_path: Path) -> int:
         except FileNotFoundError:
             same_file = False
         if same_file:  # else the previous holder removed it between our open and flock
-            os.ftruncate(fd, 0)
-            os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+            try:
+                os.ftruncate(fd, 0)
+                os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+            except BaseException as err:  # a full disk: no lock file is left behind
+                lock_path.unlink(missing_ok=True)
+                os.close(fd)
+                if disk_full(err):
+                    raise LiquidGSError(
+                        f"no space left on {lock_path.parent} while writing {lock_path.name}; nothing was written"
+                    ) from None
+                raise
             return fd
         os.close(fd)
 

@@ -13,7 +13,7 @@ import torch
 from liquidgs.atomic import write_atomic, write_json_atomic
 from liquidgs.errors import LiquidGSError
 from liquidgs.gaussians import PARAM_KEYS
-from liquidgs.train.run_folder.layout import CHECKPOINT, RESULTS
+from liquidgs.train.run_folder.layout import CHECKPOINT, FAILURE, RESULTS
 
 RESULTS_FORMAT = "liquidgs-results-1"
 """A results.json without a format was written before the format was recorded: it is this one."""
@@ -65,11 +65,18 @@ class RunResults:
     """Runs that refine their cameras: the final evaluation again with each test camera aligned to the
     frozen scene (its "cameras" says how); `final` is with the test cameras as given. Empty for a run
     that does not refine, and then left out of results.json, as before refinement existed."""
+    threads: int | None = None
+    """torch's intra-op threads, which the compiled CPU kernels use too (train.run.training_threads);
+    None in results written before it was recorded. Some results depend on it (docs/training.md says which)."""
 
     def to_json(self) -> dict:
-        # final_aligned only where there is one: a run without refinement writes what it did before.
-        return {_json_key(name): value for name, value in dataclasses.asdict(self).items()
-                if name != "final_aligned" or value}  # fmt: skip
+        """The file's content; what was recorded later and is absent here (threads None, final_aligned
+        empty) is left out, as it was before."""
+        return {
+            _json_key(name): value
+            for name, value in dataclasses.asdict(self).items()
+            if not (name in _RECORDED_LATER and value is None) and (name != "final_aligned" or value)
+        }
 
     @classmethod
     def from_json(cls, raw, path: Path) -> RunResults:
@@ -89,10 +96,17 @@ class RunResults:
                 if _has_default(cls, name):  # added to the format later
                     continue
                 raise LiquidGSError(f"{path}: field '{key}' is missing")
-            if not _is_a(raw[key], types[name]):
-                raise LiquidGSError(f"{path}: field '{key}' is not {_JSON_KINDS[types[name]]}")
+            if raw[key] is None and name in _RECORDED_LATER:
+                continue
+            kind = _RECORDED_LATER.get(name, types[name])
+            if not _is_a(raw[key], kind):
+                raise LiquidGSError(f"{path}: field '{key}' is not {_JSON_KINDS[kind]}")
         return cls(**{name: raw[key] for key, name in names.items() if key in raw})
 
+
+_RECORDED_LATER = {"threads": int}
+"""Fields added to the format after results were written without them, with their kind: absent or
+null means unknown (None)."""
 
 _JSON_KINDS = {
     str: "a string",
@@ -146,14 +160,20 @@ def write_per_view(path: Path, iteration: int, views: list[dict]) -> Path:
     return write_json_atomic(path, {"iteration": iteration, "views": views})
 
 
+def write_failure(run_dir: Path, checkpoint_iteration: int | None, reason: str) -> Path:
+    """FAILURE: why the run stopped (the error it exited with) and the iteration of the checkpoint
+    it kept (None: none yet)."""
+    return write_json_atomic(run_dir / FAILURE, {"reason": reason, "checkpoint_iteration": checkpoint_iteration})
+
+
 def write_checkpoint(run_dir: Path, contents: dict) -> Path:
     """checkpoint.pt: the trainer's `contents` (tensors, numbers, strings and plain containers
     only, so read_checkpoint can load it safely) under this format's marker."""
     payload = {"format": CHECKPOINT_FORMAT, **contents}
 
     def save(tmp: Path) -> None:
-        # Through a Python file object, so a full disk raises OSError(ENOSPC) and not a
-        # torch stream error that never mentions space.
+        # Through a Python file object, so a full disk raises an OSError(ENOSPC) that write_atomic
+        # finds (torch's zip writer re-raises it as a RuntimeError that never mentions space).
         with open(tmp, "wb") as file:
             torch.save(payload, file)
 
