@@ -10,7 +10,6 @@ import http.server
 import io
 import json
 import os
-import shutil
 import threading
 from pathlib import Path
 
@@ -19,6 +18,7 @@ import pytest
 import torch
 from PIL import Image
 
+from browser import launched_chromium
 from liquidgs.eval.metrics import psnr
 from liquidgs.media import to_uint8
 from liquidgs.train.run import load_run, load_run_dataset
@@ -26,10 +26,8 @@ from tiny_runs import one_line_error, run_cli
 
 REPO = Path(__file__).resolve().parents[1]
 ARTIFACTS = Path(os.environ.get("LIQUIDGS_TEST_ARTIFACTS", REPO / "test-artifacts")) / "web"
-CHROMIUM = os.environ.get("LIQUIDGS_CHROMIUM") or shutil.which("chromium") or "/usr/bin/chromium"
 # SwiftShader stands in for a GPU: WebGL2 on the CPU, as on a machine without one.
-CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
-                  "--disable-background-networking", "--disable-component-update", "--no-first-run"]  # fmt: skip
+WEBGL_FLAGS = ["--use-angle=swiftshader", "--enable-unsafe-swiftshader"]
 AGREEMENT_DB = 35.0
 """Browser screenshot against liquidgs' render. Both follow the same projection, SH and alpha rules;
 what differs is float32 on the CPU vs the GPU's arithmetic, the framebuffer's 8 bits per blend
@@ -113,13 +111,7 @@ class QuietHandler(http.server.SimpleHTTPRequestHandler):
 
 @pytest.fixture(scope="module")
 def browser():
-    sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is not installed (pip install -e .[dev])")
-    if not Path(CHROMIUM).is_file():
-        pytest.skip(f"no Chromium at {CHROMIUM}: scripts/setup_browser.sh installs Debian's chromium (needs root)")
-    with sync_api.sync_playwright() as playwright:
-        browser = playwright.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_FLAGS)
-        yield browser
-        browser.close()
+    yield from launched_chromium(WEBGL_FLAGS)
 
 
 def image_psnr(a: np.ndarray, b: np.ndarray) -> float:

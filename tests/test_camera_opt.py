@@ -149,22 +149,27 @@ def test_refinement_is_on_for_captures_only_and_off_leaves_the_identity_as_it_wa
 REFINE_RUN = tiny_flags({"iterations": 30, "checkpoint_every": 10, "eval.start": 30, "cameras.align_steps": 5})
 
 
-def test_a_refining_run_resumes_bit_exactly_and_writes_its_corrections(capture, tmp_path, monkeypatch):
-    flags = ["--data", str(capture / "nerfies"), "--field", "mlp", *REFINE_RUN]
-    whole = run_train([*flags, "--out", str(tmp_path / "whole")])
-    assert whole.final_aligned["n_views"] == whole.final["n_views"] and "aligned" in whole.final_aligned["cameras"]
-
+def train_until_ctrl_c(args: list[str], monkeypatch, at_step: int = 15) -> None:
+    """`liquidgs train ARGS` stopped by a Ctrl-C at step `at_step`: the checkpoint before it is kept."""
     original_step = Trainer.train_step
 
     def stop(self, step):
-        if step == 15:
+        if step == at_step:
             raise KeyboardInterrupt
         return original_step(self, step)
 
     monkeypatch.setattr(Trainer, "train_step", stop)
     with pytest.raises(KeyboardInterrupt):
-        run_train([*flags, "--out", str(tmp_path / "cut")])
+        run_train(args)
     monkeypatch.setattr(Trainer, "train_step", original_step)
+
+
+def test_a_refining_run_resumes_bit_exactly_and_writes_its_corrections(capture, tmp_path, monkeypatch):
+    flags = ["--data", str(capture / "nerfies"), "--field", "mlp", *REFINE_RUN]
+    whole = run_train([*flags, "--out", str(tmp_path / "whole")])
+    assert whole.final_aligned["n_views"] == whole.final["n_views"] and "aligned" in whole.final_aligned["cameras"]
+
+    train_until_ctrl_c([*flags, "--out", str(tmp_path / "cut")], monkeypatch)
     run_train([*flags, "--out", str(tmp_path / "cut"), "--resume"])
 
     a = torch.load(tmp_path / "whole" / "checkpoint.pt", weights_only=True)
@@ -183,17 +188,7 @@ def test_a_run_made_before_refinement_resumes_without_it(capture, tmp_path, monk
     """Its config.yml has no `cameras` and its checkpoint none: it continues as it was trained."""
     out = tmp_path / "old"
     flags = ["--data", str(capture / "nerfies"), "--field", "static", *REFINE_RUN, "--out", str(out)]
-    original_step = Trainer.train_step
-
-    def stop(self, step):
-        if step == 15:
-            raise KeyboardInterrupt
-        return original_step(self, step)
-
-    monkeypatch.setattr(Trainer, "train_step", stop)
-    with pytest.raises(KeyboardInterrupt):
-        run_train([*flags, "--cameras.refine", "off"])
-    monkeypatch.setattr(Trainer, "train_step", original_step)
+    train_until_ctrl_c([*flags, "--cameras.refine", "off"], monkeypatch)
     stored = yaml.safe_load((out / "config.yml").read_text())
     del stored["cameras"]
     (out / "config.yml").write_text(yaml.safe_dump(stored, sort_keys=False))
@@ -212,17 +207,7 @@ def test_a_run_made_before_refinement_resumes_without_it(capture, tmp_path, monk
 def test_a_refining_checkpoint_without_corrections_is_one_line(capture, tmp_path, monkeypatch, capsys):
     out = tmp_path / "run"
     flags = ["--data", str(capture / "nerfies"), "--field", "static", *REFINE_RUN, "--out", str(out)]
-    original_step = Trainer.train_step
-
-    def stop(self, step):
-        if step == 15:
-            raise KeyboardInterrupt
-        return original_step(self, step)
-
-    monkeypatch.setattr(Trainer, "train_step", stop)
-    with pytest.raises(KeyboardInterrupt):
-        run_train(flags)
-    monkeypatch.setattr(Trainer, "train_step", original_step)
+    train_until_ctrl_c(flags, monkeypatch)
     payload = torch.load(out / "checkpoint.pt", weights_only=True)
     payload["cameras"] = None
     torch.save(payload, out / "checkpoint.pt")

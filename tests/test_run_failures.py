@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import torch
 
-from field_plugins import use_registry, write_plugin
+from field_plugins import plugin, use_registry, write_plugin
 from liquidgs.cli import main as cli
 from liquidgs.commands.train import resolve_config
 from liquidgs.data import generate_synthetic
@@ -67,8 +67,8 @@ def optional_lpips(monkeypatch):
 
 @pytest.fixture
 def eval_mode_fields(tmp_path, monkeypatch):
-    plugin = write_plugin(tmp_path, "eval_mode_fields", EVAL_MODE_FIELDS, monkeypatch)
-    use_registry(monkeypatch, [("eval-mode-fields", plugin)])
+    entry_point = write_plugin(tmp_path, "eval_mode_fields", EVAL_MODE_FIELDS, monkeypatch)
+    use_registry(monkeypatch, [plugin("eval-mode-fields", entry_point)])
 
 
 # ----------------------------------------------------------------- collapse

@@ -25,26 +25,16 @@ import pytest
 import torch
 from PIL import Image
 
+from browser import launched_chromium
 from liquidgs.cli import main as cli
 from liquidgs.commands.train import resolve_config, train
 from liquidgs.data import generate_synthetic
 from liquidgs.media import to_uint8
 from liquidgs.render.camera_path import PathCamera, read_camera_path, write_camera_path
-from shared_data import require_module
 
 REPO = Path(__file__).resolve().parents[1]
 ARTIFACTS = Path(os.environ.get("LIQUIDGS_TEST_ARTIFACTS", REPO / "test-artifacts")) / "viewer"
-CHROMIUM = os.environ.get("LIQUIDGS_CHROMIUM") or shutil.which("chromium") or "/usr/bin/chromium"
-CHROMIUM_FLAGS = [
-    "--headless",
-    "--no-sandbox",
-    "--disable-gpu",
-    "--disable-quic",
-    "--no-first-run",
-    "--disable-background-networking",  # without these, connections are refused on a closed network
-    "--disable-component-update",
-    "--disable-sync",
-]
+VIEWER_FLAGS = ["--disable-gpu", "--disable-quic", "--disable-sync"]
 VIEWPORT = {"width": 1400, "height": 700}
 
 
@@ -250,13 +240,7 @@ def test_command_binds_to_localhost_and_ctrl_c_stops_it(run_dir):
 
 @pytest.fixture(scope="module")
 def browser():
-    sync_api = require_module("playwright.sync_api")
-    if not Path(CHROMIUM).is_file():
-        pytest.skip(f"no Chromium at {CHROMIUM}: scripts/setup_browser.sh installs Debian's chromium (needs root)")
-    with sync_api.sync_playwright() as playwright:
-        browser = playwright.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_FLAGS)
-        yield browser
-        browser.close()
+    yield from launched_chromium(VIEWER_FLAGS)
 
 
 def wait_for(condition, what: str, timeout: float = 60.0) -> None:
