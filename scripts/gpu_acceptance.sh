@@ -25,7 +25,7 @@ scene=${2:-.scene/hellwarrior}
 py=${PYTHON:-python3}
 export PYTHONUNBUFFERED=1 PYTHONPATH="$PWD/src:/tmp/site${PYTHONPATH:+:$PYTHONPATH}"
 [ -d .scene/lpips ] && export LIQUIDGS_LPIPS_WEIGHTS="$PWD/.scene/lpips"
-if ! "$py" -c "import torch" 2>/dev/null; then
+if ! "$py" -c "import importlib.util, sys; sys.exit(importlib.util.find_spec('torch') is None)" 2>/dev/null; then
     echo "gpu_acceptance: $py cannot import torch (set PYTHON to an interpreter that has it)" >&2
     exit 2
 fi
