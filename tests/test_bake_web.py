@@ -118,6 +118,7 @@ def image_psnr(a: np.ndarray, b: np.ndarray) -> float:
     return float(psnr(torch.from_numpy(a / 255.0), torch.from_numpy(b / 255.0)))
 
 
+@pytest.mark.slow  # Chromium, as the viewer's browser test
 def test_player_in_chromium_matches_liquidgs_render(browser, served, baked):
     page = browser.new_page()
     problems, requests = [], []

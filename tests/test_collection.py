@@ -9,6 +9,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 HIDDEN = ("ncps", "pycolmap", "playwright", "viser")
 # Put first on sys.meta_path by sitecustomize: `import NAME` of a hidden package raises as if it were absent.
@@ -24,6 +26,7 @@ sys.meta_path.insert(0, HideOptionalPackages())
 '''
 
 
+@pytest.mark.slow  # a second pytest process that imports every test module
 def test_every_module_collects_with_the_optional_packages_hidden(tmp_path):
     (tmp_path / "sitecustomize.py").write_text(BLOCKER)
     path = os.pathsep.join([str(tmp_path), str(ROOT / "src"), os.environ.get("PYTHONPATH", "")])
