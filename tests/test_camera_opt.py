@@ -29,9 +29,8 @@ from liquidgs.train.camera_opt import (
 )
 from liquidgs.train.config import config_hash, differing_settings, identity, load_yaml
 from liquidgs.train.model import Deformed, render_frame
-from liquidgs.train.trainer import Trainer
 from shared_data import use_optional_lpips
-from tiny_runs import one_line_error, run_cli, run_train, tiny_flags
+from tiny_runs import interrupt_at, one_line_error, run_cli, run_train, tiny_flags
 
 SIZE = 40
 
@@ -149,27 +148,12 @@ def test_refinement_is_on_for_captures_only_and_off_leaves_the_identity_as_it_wa
 REFINE_RUN = tiny_flags({"iterations": 30, "checkpoint_every": 10, "eval.start": 30, "cameras.align_steps": 5})
 
 
-def train_until_ctrl_c(args: list[str], monkeypatch, at_step: int = 15) -> None:
-    """`liquidgs train ARGS` stopped by a Ctrl-C at step `at_step`: the checkpoint before it is kept."""
-    original_step = Trainer.train_step
-
-    def stop(self, step):
-        if step == at_step:
-            raise KeyboardInterrupt
-        return original_step(self, step)
-
-    monkeypatch.setattr(Trainer, "train_step", stop)
-    with pytest.raises(KeyboardInterrupt):
-        run_train(args)
-    monkeypatch.setattr(Trainer, "train_step", original_step)
-
-
 def test_a_refining_run_resumes_bit_exactly_and_writes_its_corrections(capture, tmp_path, monkeypatch):
     flags = ["--data", str(capture / "nerfies"), "--field", "mlp", *REFINE_RUN]
     whole = run_train([*flags, "--out", str(tmp_path / "whole")])
     assert whole.final_aligned["n_views"] == whole.final["n_views"] and "aligned" in whole.final_aligned["cameras"]
 
-    train_until_ctrl_c([*flags, "--out", str(tmp_path / "cut")], monkeypatch)
+    interrupt_at(15, [*flags, "--out", str(tmp_path / "cut")], monkeypatch)
     run_train([*flags, "--out", str(tmp_path / "cut"), "--resume"])
 
     a = torch.load(tmp_path / "whole" / "checkpoint.pt", weights_only=True)
@@ -188,7 +172,7 @@ def test_a_run_made_before_refinement_resumes_without_it(capture, tmp_path, monk
     """Its config.yml has no `cameras` and its checkpoint none: it continues as it was trained."""
     out = tmp_path / "old"
     flags = ["--data", str(capture / "nerfies"), "--field", "static", *REFINE_RUN, "--out", str(out)]
-    train_until_ctrl_c([*flags, "--cameras.refine", "off"], monkeypatch)
+    interrupt_at(15, [*flags, "--cameras.refine", "off"], monkeypatch)
     stored = yaml.safe_load((out / "config.yml").read_text())
     del stored["cameras"]
     (out / "config.yml").write_text(yaml.safe_dump(stored, sort_keys=False))
@@ -207,7 +191,7 @@ def test_a_run_made_before_refinement_resumes_without_it(capture, tmp_path, monk
 def test_a_refining_checkpoint_without_corrections_is_one_line(capture, tmp_path, monkeypatch, capsys):
     out = tmp_path / "run"
     flags = ["--data", str(capture / "nerfies"), "--field", "static", *REFINE_RUN, "--out", str(out)]
-    train_until_ctrl_c(flags, monkeypatch)
+    interrupt_at(15, flags, monkeypatch)
     payload = torch.load(out / "checkpoint.pt", weights_only=True)
     payload["cameras"] = None
     torch.save(payload, out / "checkpoint.pt")

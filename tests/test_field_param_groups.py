@@ -16,8 +16,7 @@ from liquidgs.fields.hexplane import HexPlaneField
 from liquidgs.train.config import load_yaml, save_yaml
 from liquidgs.train.schedules import log_linear_lr
 from liquidgs.train.trainer import Trainer
-from test_train import train_until_interrupted
-from tiny_runs import one_line_error, run_train, tiny_flags
+from tiny_runs import interrupt_at, one_line_error, run_train, tiny_flags
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
@@ -107,7 +106,7 @@ def test_a_field_whose_groups_miss_a_parameter_stops_the_run_before_it_starts(
 def test_hexplane_trains_checkpoints_and_resumes_with_its_groups(puppet_scene, tmp_path, monkeypatch, capsys):
     whole, interrupted = tmp_path / "whole", tmp_path / "interrupted"
     run_train(field_args(puppet_scene, "hexplane", whole))
-    train_until_interrupted(field_args(puppet_scene, "hexplane", interrupted), monkeypatch)
+    interrupt_at(21, field_args(puppet_scene, "hexplane", interrupted), monkeypatch)
     stale = tmp_path / "stale"
     shutil.copytree(interrupted, stale)
     run_train(field_args(puppet_scene, "hexplane", interrupted, "--resume"))
@@ -134,7 +133,7 @@ def test_hexplane_trains_checkpoints_and_resumes_with_its_groups(puppet_scene, t
 def test_a_checkpoint_from_before_the_groups_resumes_for_a_field_of_one_group(puppet_scene, tmp_path, monkeypatch):
     """Written then, the field's one Adam group had neither a name nor a scale."""
     out = tmp_path / "run"
-    train_until_interrupted(field_args(puppet_scene, "mlp", out), monkeypatch)
+    interrupt_at(21, field_args(puppet_scene, "mlp", out), monkeypatch)
     checkpoint = torch.load(out / "checkpoint.pt", weights_only=True)
     [group] = checkpoint["field_optimizer"]["param_groups"]
     del group["name"], group["lr_scale"]

@@ -30,7 +30,7 @@ from liquidgs.train.run_folder import (
 )
 from liquidgs.train.strategy import D3DGSStrategy, DensifyConfig
 from liquidgs.train.trainer import Trainer
-from tiny_runs import one_line_error, run_train, snapshot, tiny_flags
+from tiny_runs import interrupt_at, one_line_error, run_train, snapshot, tiny_flags
 
 SRC = Path(__file__).resolve().parents[1] / "src"
 
@@ -48,20 +48,6 @@ def scene(puppet_scene) -> Path:
 @pytest.fixture(autouse=True)
 def _one_thread(one_torch_thread):
     yield
-
-
-def interrupt_at(step_to_stop: int, args: list[str], monkeypatch) -> None:
-    original = Trainer.train_step
-
-    def stop(self, step):
-        if step == step_to_stop:
-            raise KeyboardInterrupt
-        return original(self, step)
-
-    monkeypatch.setattr(Trainer, "train_step", stop)
-    with pytest.raises(KeyboardInterrupt):
-        run_train(args)
-    monkeypatch.setattr(Trainer, "train_step", original)
 
 
 # ----------------------------------------------------------------- 1. one writer

@@ -19,7 +19,7 @@ from liquidgs.train.config import config_hash, identity, legacy_identity, load_y
 from liquidgs.train.run_folder import RESULTS_FORMAT
 from liquidgs.train.trainer import Trainer, TrainingDiverged
 from shared_data import optional_lpips_dir, use_optional_lpips
-from tiny_runs import one_line_error, run_train, tiny_flags
+from tiny_runs import interrupt_at, one_line_error, run_train, tiny_flags
 
 # The smoke runs: 800 random points, a longer warm-up, densifying every 10 steps with a reset at 25,
 # three frames timed, a checkpoint at 20 (the resume test stops at 21, just after it).
@@ -39,21 +39,6 @@ def small_scene(tmp_path_factory) -> Path:
 @pytest.fixture(autouse=True)
 def optional_lpips(monkeypatch):
     use_optional_lpips(monkeypatch)
-
-
-def train_until_interrupted(args: list[str], monkeypatch) -> None:
-    """Start a run and stop it like Ctrl-C at iteration 21, just after its checkpoint at 20."""
-    original_step = Trainer.train_step
-
-    def stop_after_checkpoint(self, step):
-        if step == 21:
-            raise KeyboardInterrupt
-        return original_step(self, step)
-
-    monkeypatch.setattr(Trainer, "train_step", stop_after_checkpoint)
-    with pytest.raises(KeyboardInterrupt):
-        run_train(args)
-    monkeypatch.setattr(Trainer, "train_step", original_step)
 
 
 @pytest.mark.parametrize("field", ["static", "mlp", "cfc", "sde"])
@@ -83,7 +68,7 @@ def test_resume_matches_an_uninterrupted_run(small_scene, tmp_path, monkeypatch)
     run_train([*flags, "--out", str(whole)])
 
     interrupted = tmp_path / "interrupted"
-    train_until_interrupted([*flags, "--out", str(interrupted)], monkeypatch)
+    interrupt_at(21, [*flags, "--out", str(interrupted)], monkeypatch)
     assert not (interrupted / "results.json").exists()
     # Restarting without --resume is refused rather than silently starting over.
     assert cli(["train", *flags, "--out", str(interrupted)]) == 2
@@ -272,7 +257,7 @@ def test_output_folder_with_another_run_is_not_touched(small_scene, tmp_path, ca
 
 def test_corrupt_checkpoint_on_resume_is_a_clear_error(small_scene, tmp_path, capsys, monkeypatch):
     out = tmp_path / "run"
-    train_until_interrupted(
+    interrupt_at(21,
         ["--data", str(small_scene), "--field", "mlp", "--out", str(out), *SMOKE_FLAGS], monkeypatch
     )
     checkpoint = out / "checkpoint.pt"

@@ -11,11 +11,14 @@ import contextlib
 import io
 from pathlib import Path
 
+import pytest
+
 from liquidgs.cli import main as cli
 from liquidgs.commands.train import resolve_config, train
 from liquidgs.settings import to_flags
 from liquidgs.train.config import TrainConfig
 from liquidgs.train.run_folder import RunResults
+from liquidgs.train.trainer import Trainer
 
 # The tiny preset cut to a few seconds: 40 iterations of a few hundred Gaussians, densifying from
 # step 5 with an opacity reset at 15 and 30, evaluated at 20 and 40, a checkpoint every 10 steps.
@@ -42,6 +45,22 @@ def run_train(args: list[str]) -> RunResults:
     """`liquidgs train ARGS` in this process; its results."""
     cfg, run_dir = resolve_config(args)
     return train(cfg, run_dir)
+
+
+def interrupt_at(step_to_stop: int, args: list[str], monkeypatch) -> None:
+    """`liquidgs train ARGS` stopped like Ctrl-C when it reaches step `step_to_stop` (the checkpoints
+    before it are kept)."""
+    original = Trainer.train_step
+
+    def stop(self, step):
+        if step == step_to_stop:
+            raise KeyboardInterrupt
+        return original(self, step)
+
+    monkeypatch.setattr(Trainer, "train_step", stop)
+    with pytest.raises(KeyboardInterrupt):
+        run_train(args)
+    monkeypatch.setattr(Trainer, "train_step", original)
 
 
 def run_cli(args: list[str]) -> tuple[int, str, str]:
