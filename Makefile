@@ -15,6 +15,10 @@ BIN := $(VENV)/bin
 LPIPS_REF := .venv-lpips-ref
 LPIPS_RECORD := tests/data/lpips_pypi_reference.json
 LPIPS_REFERENCE ?= check
+# pytest-xdist workers, one per core by default; whole files go to one worker (--dist loadfile), so a
+# module's shared fixture (test_quality's eight trainings, say) is built once. TEST_WORKERS=0: serial.
+TEST_WORKERS ?= auto
+PYTEST := $(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile
 
 .PHONY: demo test test-fast docs lint setup lpips-reference
 
@@ -41,7 +45,7 @@ demo: $(BIN)/liquidgs
 test: $(BIN)/liquidgs
 	bash scripts/setup_browser.sh
 	$(BIN)/ruff check src tests examples
-	$(BIN)/python -m pytest -q tests examples/field-plugin/tests
+	$(PYTEST) tests examples/field-plugin/tests
 
 $(BIN)/mkdocs: $(BIN)/liquidgs pyproject.toml
 	$(BIN)/python -m pip install -q -e ".[docs]"
@@ -54,7 +58,7 @@ docs: $(BIN)/mkdocs
 # executor guarantees.
 test-fast: $(BIN)/liquidgs
 	$(BIN)/ruff check src tests examples
-	$(BIN)/python -m pytest -q -m "not slow" tests examples/field-plugin/tests
+	$(PYTEST) -m "not slow" tests examples/field-plugin/tests
 
 lint: $(BIN)/liquidgs
 	$(BIN)/ruff check src tests examples

@@ -324,12 +324,12 @@ class Viewer:
             if not self.play.value:
                 continue
             t = self.time_slider.value + step
-            if t > 1.0:
-                if self.loop.value:
-                    t -= math.floor(t)
-                else:
-                    t, self.play.value = 1.0, False
-            self.time_slider.value = t
+            if t > 1.0 and not self.loop.value:
+                # The slider before the checkbox: whoever sees playback stop sees the sweep's end.
+                self.time_slider.value = 1.0
+                self.play.value = False
+                continue
+            self.time_slider.value = t - math.floor(t) if t > 1.0 else t
 
     # ----- camera paths ---------------------------------------------------------------------
     def add_keyframe(self, client: viser.ClientHandle) -> None:
