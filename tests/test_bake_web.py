@@ -1,6 +1,7 @@
 """`liquidgs export --format web`: the static player folder, played by headless Chromium (Debian's
 `chromium`, scripts/setup_browser.sh) from a local static file server, compared with liquidgs' own
-render of the same cameras and times. Screenshots go to test-artifacts/web/."""
+render of the same cameras and times; and `--format splatv` played the same way by gsplat.js, a
+player of the format not written here. Screenshots go to test-artifacts/web/."""
 
 from __future__ import annotations
 
