@@ -244,6 +244,9 @@ def test_bench_bake_prints_fidelity_and_speed(tiny_run, baked, tmp_path, capsys)
     assert record["baked_vs_field_psnr"] > 40 and abs(record["test_psnr_change"]) < 0.1
     assert record["field_ms_per_frame"] > 0 and record["baked_ms_per_frame"] > 0
     assert record["cpu_speedup"] == pytest.approx(record["field_cpu_ms_per_frame"] / record["baked_cpu_ms_per_frame"])
+    parts = record["field_deformation_cpu_ms"], record["keyframe_interpolation_cpu_ms"], record["rasteriser_cpu_ms"]
+    assert min(parts) > 0
+    assert record["speedup_bound"] == pytest.approx((parts[0] + parts[2]) / parts[2])
     assert record["bytes_per_gaussian"] == (baked / "scene.pt").stat().st_size / record["gaussians"]
     assert cli(["bench", "bake", "--run", str(tiny_run), "--baked", str(tiny_run)]) == 2
     assert "not a baked scene" in one_line_error(capsys)

@@ -5,7 +5,10 @@ each against ground truth (8-bit, as eval scores it) and its change, bytes per G
 against the field of the splatv model fitted to the baked scene (as the file stores it) and the
 share of the motion it keeps, and the
 render time of each (the same cameras, resolution and Gaussians; the fastest of --repeats passes over
-the views, by the wall clock and by the process's CPU time) with the speed-ups. Prints one JSON object; --output appends it to a JSONL file.
+the views, by the wall clock and by the process's CPU time) with the speed-ups; and the CPU time
+of a frame's parts: the field's deformation, the keyframe interpolation, the rasteriser, with the
+speed-up that free interpolation would reach, (deformation + rasteriser) / rasteriser. Prints one
+JSON object; --output appends it to a JSONL file.
 """
 
 from __future__ import annotations
@@ -92,6 +95,16 @@ def measure(run_dir: Path, baked_dir: Path, repeats: int) -> dict:
         baked_gt.append(float(psnr(quantize_8bit(b), truth)))
     field_seconds, field_cpu = fastest(field_render, frames, repeats)
     baked_seconds, baked_cpu = fastest(baked_render, frames, repeats)
+    # Where a frame's time goes: the Gaussians at the frame's time (field or keyframes), then the
+    # rasteriser, which both pay alike; its share bounds the speed-up however cheap the keyframes.
+    at_time = {frame.time: baked.at_time(frame.time) for frame in frames}
+    _, deformation_cpu = fastest(lambda frame: run.at_time(frame.time), frames, repeats)
+    _, interpolation_cpu = fastest(lambda frame: baked.at_time(frame.time), frames, repeats)
+    _, rasteriser_cpu = fastest(
+        lambda frame: render_frame(at_time[frame.time], frame.camera, sh_degree=baked.sh_degree,
+                                   background=background, backend=run.config.backend),
+        frames, repeats,
+    )  # fmt: skip
     camera = frames[0].camera
     return {
         "scene": dataset.scene_name,
@@ -118,6 +131,10 @@ def measure(run_dir: Path, baked_dir: Path, repeats: int) -> dict:
         "field_cpu_ms_per_frame": 1000 * field_cpu,
         "baked_cpu_ms_per_frame": 1000 * baked_cpu,
         "cpu_speedup": field_cpu / baked_cpu,
+        "field_deformation_cpu_ms": 1000 * deformation_cpu,
+        "keyframe_interpolation_cpu_ms": 1000 * interpolation_cpu,
+        "rasteriser_cpu_ms": 1000 * rasteriser_cpu,
+        "speedup_bound": (deformation_cpu + rasteriser_cpu) / rasteriser_cpu,
         "timing": f"fastest of {repeats} passes over the test views, render only (no PNG), backend "
         f"{run.config.backend}",
         "machine": machine_description(torch.device("cpu")),
