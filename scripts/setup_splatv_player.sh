@@ -13,7 +13,8 @@ if ! command -v npm >/dev/null 2>&1; then
     echo "setup_splatv_player: npm is missing (apt-get install npm); the gsplat.js splatv test will be skipped" >&2
     exit 0
 fi
-if ! npm ci --prefix "$player" --no-audit --no-fund --loglevel=error; then
+# Bounded: on a closed network npm would otherwise retry for minutes.
+if ! npm ci --prefix "$player" --no-audit --no-fund --loglevel=error --fetch-retries=1 --fetch-timeout=60000; then
     echo "setup_splatv_player: npm ci in $player failed; the gsplat.js splatv test will be skipped" >&2
 fi
 exit 0
