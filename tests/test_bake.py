@@ -68,6 +68,30 @@ def test_spline_passes_through_keyframes_and_reproduces_quadratic_motion():
     assert torch.allclose(interpolate(keyframes, 0.43)[:, QUATERNION].norm(dim=-1), torch.ones(1))
 
 
+def catmull_rom(keyframes: torch.Tensor, time: float) -> torch.Tensor:
+    """motion.interpolate spelled out: the cubic Hermite polynomial with central-difference tangents
+    and mirrored phantom keyframes at the ends, then the quaternion renormalised."""
+    count = keyframes.shape[0]
+    u = min(max(time, 0.0), 1.0) * (count - 1)
+    i = min(int(u), count - 2)
+    f = u - i
+    p1, p2 = keyframes[i].double(), keyframes[i + 1].double()
+    p0 = keyframes[i - 1].double() if i > 0 else 2 * p1 - p2
+    p3 = keyframes[i + 2].double() if i + 2 < count else 2 * p2 - p1
+    state = 0.5 * (2 * p1 + (p2 - p0) * f + (2 * p0 - 5 * p1 + 4 * p2 - p3) * f**2 + (3 * p1 - p0 - 3 * p2 + p3) * f**3)
+    state[:, QUATERNION] = torch.nn.functional.normalize(state[:, QUATERNION], dim=-1)
+    return state
+
+
+@pytest.mark.parametrize("count", [2, 3, 4, 9])
+def test_spline_weights_equal_the_polynomial(count):
+    keyframes = torch.randn(count, 50, 10, generator=torch.Generator().manual_seed(count))
+    before = keyframes.clone()
+    for t in [0.0, 1e-9, 0.1, 0.26, 0.5, 0.62, 0.87, 0.999, 1.0, -0.5, 1.5, *keyframe_times(count).tolist()]:
+        assert torch.allclose(interpolate(keyframes, t).double(), catmull_rom(keyframes, t), atol=2e-6), (count, t)
+    assert torch.equal(keyframes, before)  # the keyframes are read, never written
+
+
 def test_quaternion_signs_follow_the_keyframe_before():
     quats = axis_angle_quats(torch.linspace(0, 1, 3))
     keyframes = torch.zeros(3, 1, 10)
@@ -219,6 +243,10 @@ def test_bench_bake_prints_fidelity_and_speed(tiny_run, baked, tmp_path, capsys)
     assert record == json.loads(output.read_text())
     assert record["baked_vs_field_psnr"] > 40 and abs(record["test_psnr_change"]) < 0.1
     assert record["field_ms_per_frame"] > 0 and record["baked_ms_per_frame"] > 0
+    assert record["cpu_speedup"] == pytest.approx(record["field_cpu_ms_per_frame"] / record["baked_cpu_ms_per_frame"])
+    parts = record["field_deformation_cpu_ms"], record["keyframe_interpolation_cpu_ms"], record["rasteriser_cpu_ms"]
+    assert min(parts) > 0
+    assert record["speedup_bound"] == pytest.approx((parts[0] + parts[2]) / parts[2])
     assert record["bytes_per_gaussian"] == (baked / "scene.pt").stat().st_size / record["gaussians"]
     assert cli(["bench", "bake", "--run", str(tiny_run), "--baked", str(tiny_run)]) == 2
     assert "not a baked scene" in one_line_error(capsys)

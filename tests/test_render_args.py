@@ -65,6 +65,17 @@ def test_non_finite_inputs(name, bad_value):
         call(arguments)
 
 
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_finiteness_check_is_exact(dtype):
+    from liquidgs.render.rasterize import _all_finite
+
+    big = torch.finfo(dtype).max
+    assert _all_finite(torch.full((100, 3), big, dtype=dtype))  # a sum that overflows is asked again
+    assert _all_finite(torch.tensor([big, -big], dtype=dtype))
+    for values in ([1.0, float("inf"), float("-inf")], [float("-inf")] * 20, [0.0] * 30 + [float("nan")]):
+        assert not _all_finite(torch.tensor(values, dtype=dtype))
+
+
 def test_bad_background():
     with pytest.raises(ValueError, match=r"background must have shape \[3\]"):
         call(valid_arguments(), background=torch.zeros(4))

@@ -4,6 +4,7 @@ gsplat's CUDA kernels). This module owns the backend names and picks the backend
 from __future__ import annotations
 
 import logging
+import math
 from typing import Any
 
 import torch
@@ -33,8 +34,19 @@ def _check_tensor(name: str, tensor: Any, shape: tuple[int | None, ...], shape_t
         raise ValueError(f"{name} must have shape {shape_text}, got {list(tensor.shape)}")
     if not tensor.is_floating_point():
         raise ValueError(f"{name} must be a floating-point tensor, got {tensor.dtype}")
-    if not bool(torch.isfinite(tensor).all()):
+    if not _all_finite(tensor):
         raise ValueError(f"{name} contains NaN or inf")
+
+
+def _all_finite(tensor: Tensor) -> bool:
+    """Whether every entry is finite. A NaN or inf makes the sum NaN or inf, so a finite sum settles
+    it in one reduction (for 5,122 Gaussians' SH coefficients 17 us, where isfinite(...).all() took
+    660 us); only a sum that overflows asks entry by entry. A camera's few numbers are read in
+    Python, cheaper than any tensor operation."""
+    if tensor.numel() <= 16 and tensor.device.type == "cpu":
+        return all(map(math.isfinite, tensor.detach().flatten().tolist()))
+    total = tensor.detach().sum()
+    return bool(torch.isfinite(total)) or bool(torch.isfinite(tensor).all())
 
 
 def _validate(
