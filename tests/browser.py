@@ -6,11 +6,8 @@ from __future__ import annotations
 import os
 import shutil
 from collections.abc import Iterator
-from pathlib import Path
 
-import pytest
-
-from shared_data import require_module
+from shared_data import require_installed, require_module
 
 CHROMIUM = os.environ.get("LIQUIDGS_CHROMIUM") or shutil.which("chromium") or "/usr/bin/chromium"
 # Without the background-networking flags, connections are refused on a closed network.
@@ -20,10 +17,10 @@ QUIET_FLAGS = ["--headless", "--no-sandbox", "--no-first-run", "--disable-backgr
 
 def launched_chromium(flags: list[str]) -> Iterator:
     """A Playwright browser on CHROMIUM with QUIET_FLAGS and `flags`, for a fixture to yield from;
-    skips (fails under CI) without Playwright, skips without Chromium."""
+    skips (fails under CI) without Playwright or Chromium."""
     sync_api = require_module("playwright.sync_api")
-    if not Path(CHROMIUM).is_file():
-        pytest.skip(f"no Chromium at {CHROMIUM}: scripts/setup_browser.sh installs Debian's chromium (needs root)")
+    missing = f"no Chromium at {CHROMIUM}: scripts/setup_browser.sh installs Debian's chromium (needs root)"
+    require_installed(CHROMIUM, missing)
     with sync_api.sync_playwright() as playwright:
         browser = playwright.chromium.launch(executable_path=CHROMIUM, args=[*QUIET_FLAGS, *flags])
         yield browser

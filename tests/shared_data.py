@@ -52,6 +52,16 @@ def require_module(name: str) -> ModuleType:
         pytest.skip(f"needs {name} (pip install -e .[dev])")
 
 
+def require_installed(path: Path | str, missing: str) -> Path:
+    """`path`, a tool the project's own set-up installs (Chromium, gsplat.js); otherwise skip the calling
+    test with `missing`, or fail it under CI, where a missing tool is a set-up that went wrong."""
+    if Path(path).exists():
+        return Path(path)
+    if shared_required():
+        pytest.fail(f"{missing}, and {REQUIRE_ENV} is set: make test's set-up should have installed it", pytrace=False)
+    pytest.skip(missing)
+
+
 def lpips_weights_dir() -> Path:
     """The offline LPIPS backbone weights (alexnet / squeezenet features), or skip as above."""
     return require_shared(LPIPS_DIR / "alexnet_features.pth").parent

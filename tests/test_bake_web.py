@@ -23,6 +23,7 @@ from browser import launched_chromium
 from liquidgs.eval.metrics import psnr
 from liquidgs.media import to_uint8
 from liquidgs.train.run import load_run, load_run_dataset
+from shared_data import require_installed
 from tiny_runs import one_line_error, run_cli
 
 REPO = Path(__file__).resolve().parents[1]
@@ -216,8 +217,7 @@ def splatv_site(splatv, tmp_path_factory):
     """The page, gsplat.js, the scene and two broken copies of it under one 127.0.0.1 root, the
     first two linked from the checkout: x and y of every position swapped, and the rotation's
     words (3-4) swapped with the scale's (5-6), a wrong byte layout."""
-    if not GSPLAT_JS.is_file():
-        pytest.skip(f"no gsplat.js at {GSPLAT_JS}: scripts/setup_splatv_player.sh installs it (needs npm)")
+    require_installed(GSPLAT_JS, f"no gsplat.js at {GSPLAT_JS}: scripts/setup_splatv_player.sh installs it (needs npm)")
     root = tmp_path_factory.mktemp("splatv_site")
     (root / "index.html").symlink_to(SPLATV_PLAYER / "index.html")
     (root / "node_modules").symlink_to(SPLATV_PLAYER / "node_modules")
