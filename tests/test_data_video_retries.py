@@ -15,6 +15,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 from PIL import Image
 
 from liquidgs.data.synthetic import render_rgba
@@ -26,10 +27,12 @@ FRAMES = 16
 SHOWN = 4  # frames at each end that show the scene
 
 
-def test_a_clip_whose_ends_only_meet_in_exhaustive_matching_is_solved_by_the_second_attempt(tmp_path):
+@pytest.fixture(scope="module")
+def ends_only(tmp_path_factory):
+    """The frames as an image folder, and the true camera-to-world poses."""
     require_module("pycolmap")
     K = np.array([[FOCAL, 0.0, WIDTH / 2], [0.0, FOCAL, HEIGHT / 2], [0.0, 0.0, 1.0]])
-    images = tmp_path / "images"
+    images = tmp_path_factory.mktemp("ends") / "images"
     images.mkdir()
     poses = camera_path(FRAMES)
     for index, pose in enumerate(poses):
@@ -38,6 +41,11 @@ def test_a_clip_whose_ends_only_meet_in_exhaustive_matching_is_solved_by_the_sec
         else:
             image = render_rgba(scene_at(index / (FRAMES - 1)), K, pose, WIDTH, HEIGHT, 1)[..., :3]
         Image.fromarray(image).save(images / f"{index:03d}.png")
+    return images, poses
+
+
+def test_a_clip_whose_ends_only_meet_in_exhaustive_matching_is_solved_by_the_second_attempt(ends_only, tmp_path):
+    images, poses = ends_only
     out = tmp_path / "scene"
     code, stdout, stderr = run_cli(["data", "images", str(images), "--out", str(out), "--threads", "1"])
     assert code == 0, stderr
@@ -75,3 +83,17 @@ def test_a_clip_whose_ends_only_meet_in_exhaustive_matching_is_solved_by_the_sec
         errors.append(np.degrees(np.arccos(np.clip((np.trace(solved @ true.T) - 1.0) / 2.0, -1.0, 1.0))))
     print(f"frame-to-frame rotation errors up to {max(errors):.3f} degrees")
     assert max(errors) < 2.0  # measured 0.97 (the two ends meet at 36 degrees or more)
+
+
+def test_matcher_exhaustive_is_the_default_attempt_and_leaves_two(ends_only, tmp_path):
+    images, _ = ends_only
+    out = tmp_path / "scene"
+    code, stdout, stderr = run_cli(
+        ["data", "images", str(images), "--out", str(out), "--threads", "1", "--matcher", "exhaustive"]
+    )
+    assert code == 0, stderr
+    assert "attempt 1 of 2 (default): exhaustive matching, COLMAP's mapper defaults" in stdout
+    assert "camera solve: attempt 1 of 2 (default) succeeded" in stdout
+    capture = json.loads((out / "capture.json").read_text())
+    assert capture["matcher"] == "exhaustive" and capture["camera_solve"]["attempt"] == "default"
+    assert capture["frames_registered"] == 2 * SHOWN

@@ -297,8 +297,9 @@ def check_model(model: pycolmap.Reconstruction, total: int) -> None:
     seen_per_frame = float(np.median(seen)) if seen else 0.0
     if model.num_points3D() < MIN_POINTS or seen_per_frame < MIN_POINTS_PER_FRAME:
         # Frames registered with (almost) nothing triangulated: every ray pair is parallel, which
-        # is what a camera turning in place gives (measured: 5 of 16 frames, 0 points; with the
-        # relaxed attempt, 9 of 16 frames, 22 points, 12 seen per frame).
+        # is what a camera turning in place gives (measured on a rendered pan: 5 of 16 frames, 0 points;
+        # with the relaxed start on every pair matched in one pass, 9 of 16 frames, 22 points, 12 seen
+        # per frame).
         raise NoDepthError(
             f"COLMAP registered {count} of {total} frames but triangulated only {model.num_points3D()} points "
             f"({seen_per_frame:.0f} seen per frame): the camera seems to turn in place, which gives no depth; "
