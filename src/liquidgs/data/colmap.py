@@ -276,6 +276,7 @@ def _map(pycolmap, database_path: Path, frames_dir: Path, sparse_dir: Path, atte
         database_path, frames_dir, sparse_dir, options=mapping, next_image_callback=next_image
     )
     if not models:
+        log(f"mapping: no model ({time.perf_counter() - started:.1f} s)")
         raise SolveError(
             f"COLMAP could not start a model from any two of the {total} frames (too little "
             "parallax or texture); move the camera sideways rather than only turning it, or film a "
