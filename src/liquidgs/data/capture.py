@@ -174,7 +174,7 @@ def _build(source: Path, scene: Path, settings: CaptureSettings, log: Log, *, vi
 
     started = time.perf_counter()
     summary = _write_scene(scene, frames, frames_dir, solved.model, settings, log)
-    summary.matcher = next(attempt["matcher"] for attempt in solved.attempts if attempt["result"] == "used")
+    summary.matcher = solved.matcher
     summary.camera_solve = {"attempt": solved.attempt, "attempts": solved.attempts}
     shutil.rmtree(work)
     seconds["writing"] = time.perf_counter() - started

@@ -71,7 +71,8 @@ class SolveOptions:
 
 class NoDepthError(SolveError):
     """The frames registered but show (almost) no depth: what a camera turning in place gives.
-    No other attempt can fix it, so it is the reason given when every attempt fails."""
+    A later attempt may still solve the clip (a real one did), but when every attempt fails and
+    any showed this, it is the reason given: it says what to change in the filming."""
 
 
 @dataclass(frozen=True)
@@ -113,6 +114,8 @@ class Solved:
     model: pycolmap.Reconstruction
     attempt: str
     """The name of the attempt whose model is used."""
+    matcher: Matcher
+    """That attempt's matcher."""
     attempts: list[dict]
     """Every attempt made, in order: name, matcher, changes, result ("used" or the refusal), seconds."""
 
@@ -172,7 +175,7 @@ def solve_cameras(
                 continue
             records.append(_record(attempt, "used", started))
             log(f"camera solve: {label} succeeded")
-            return Solved(model, attempt.name, records)
+            return Solved(model, attempt.name, attempt.matcher, records)
     cause = next((failure for failure in failures if isinstance(failure, NoDepthError)), failures[-1])
     tried = ", ".join(record["name"] for record in records)
     raise type(cause)(f"{cause} [COLMAP tried: {tried}]")
