@@ -144,6 +144,8 @@ def test_every_frame_is_registered_and_the_stages_report_counts(video_scene):
     out, stdout = video_scene
     capture = json.loads((out / "capture.json").read_text())
     assert capture["frames_total"] == capture["frames_registered"] == FRAMES and capture["dropped"] == []
+    assert capture["camera_solve"]["attempt"] == "default" and len(capture["camera_solve"]["attempts"]) == 1
+    assert "camera solve: attempt 1 of 3 (default) succeeded" in stdout
     for stage in ("extraction:", "features:", "matching (sequential):", "mapping:", "writing:"):
         assert stage in stdout, stdout
     assert f"done: {FRAMES}/{FRAMES} frames registered, mean reprojection error" in stdout

@@ -105,6 +105,26 @@ def _lens_rays(lens: Lens, K: tuple[float, ...], width: int, height: int, supers
     return np.stack([x, y, np.ones_like(x)], axis=-1).reshape(-1, 3)
 
 
+def sweeping_camera(frames: int, baseline: float, pan_degrees: float) -> list[np.ndarray]:
+    """Camera-to-world poses of a camera 4.2 in front of the wall that slides `baseline` sideways
+    (along x, evenly) while it pans `pan_degrees` (evenly, centred on the wall); 0 is a camera
+    turning in place."""
+    poses = []
+    for index in range(frames):
+        s = index / (frames - 1)
+        yaw = math.radians(pan_degrees * (s - 0.5))
+        eye = np.array([baseline * (s - 0.5), -4.2, 0.4])
+        forward = np.array([math.sin(yaw), math.cos(yaw), -0.05])
+        forward /= np.linalg.norm(forward)
+        right = np.cross(forward, [0.0, 0.0, 1.0])
+        right /= np.linalg.norm(right)
+        pose = np.eye(4)
+        pose[:3, :3] = np.stack([right, np.cross(forward, right), forward], axis=1)
+        pose[:3, 3] = eye
+        poses.append(pose)
+    return poses
+
+
 def scene_at(time: float) -> list[Primitive]:
     return [moving_ball(time), *BACKGROUND]
 

@@ -74,8 +74,9 @@ class CaptureArgs:
     max_size: int = 800
     """Longest side of the full-size (rgb/1x) frames in pixels; rgb/2x and rgb/4x are made from them."""
     matcher: Matcher = "sequential"
-    """Which frame pairs COLMAP matches: sequential (each frame with its next 10, and 16, 32, ... after
-    it; for frames in time order) or exhaustive (every pair; slower, for hard or looping captures)."""
+    """Which frame pairs COLMAP matches first: sequential (each frame with the 1st, 2nd, 4th, 8th, ...
+    512th after it; for frames in time order) or exhaustive (every pair; slower). When the solve gives
+    no usable model, it is tried again with every pair matched, then with a relaxed initial pair."""
     mask_dynamic: Path | None = None
     """Folder of masks of the moving things, one per frame (video: <frame number, 6 digits>.png, counted
     from 0 in the decoded stream; images: <image stem>.png). Nonzero pixels are moving: COLMAP

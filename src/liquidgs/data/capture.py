@@ -29,7 +29,6 @@ from liquidgs.data.colmap import (
     Log,
     SolveOptions,
     Undistorter,
-    check_model,
     describe_camera,
     solve_cameras,
     undistorters,
@@ -98,7 +97,11 @@ class CaptureSummary:
     """The lens COLMAP fitted and the pinhole camera the frames were undistorted into; None
     with keep_distortion."""
     matcher: str
+    """The matcher of the attempt whose model is used."""
     masked: bool
+    camera_solve: dict
+    """Which attempt's model is used ("attempt") and every attempt made ("attempts": name, matcher,
+    changes, result: "used" or the refusal, seconds)."""
     seconds: dict[str, float]
 
 
@@ -166,12 +169,13 @@ def _build(source: Path, scene: Path, settings: CaptureSettings, log: Log, *, vi
 
     started = time.perf_counter()
     names = [f"{frame.id}.png" for frame in frames]
-    model = solve_cameras(frames_dir, names, work, settings.solve, log, mask_dir=mask_dir)
-    check_model(model, len(frames))
+    solved = solve_cameras(frames_dir, names, work, settings.solve, log, mask_dir=mask_dir)
     seconds["colmap"] = time.perf_counter() - started
 
     started = time.perf_counter()
-    summary = _write_scene(scene, frames, frames_dir, model, settings, log)
+    summary = _write_scene(scene, frames, frames_dir, solved.model, settings, log)
+    summary.matcher = solved.matcher
+    summary.camera_solve = {"attempt": solved.attempt, "attempts": solved.attempts}
     shutil.rmtree(work)
     seconds["writing"] = time.perf_counter() - started
     summary.source = str(source)
@@ -310,6 +314,7 @@ def _write_scene(
         undistortion=_undistortion_record(lens, undistort),
         matcher=settings.solve.matcher,
         masked=settings.mask_dir is not None,
+        camera_solve={},
         seconds={},
     )
 

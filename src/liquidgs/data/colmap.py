@@ -2,7 +2,9 @@
 and COLMAP's own undistortion of images into a pinhole camera.
 
 One shared SIMPLE_RADIAL camera (a video has one lens and one zoom), SIFT features, sequential
-or exhaustive matching, incremental mapping; the largest model is kept.
+or exhaustive matching, incremental mapping; the largest model is kept. When it gives no usable
+model, the solve is tried again with every pair of frames matched, then with a relaxed initial
+pair (`solve_attempts`); each attempt and the one that succeeded are logged and returned.
 
 Undistortion (`undistorters`): pycolmap.undistort_camera / undistort_image with COLMAP's default
 options. blank_pixels = 0 means the border is cropped: the pinhole image keeps the focal length
@@ -17,7 +19,7 @@ import copy
 import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Literal
 
@@ -30,10 +32,15 @@ if TYPE_CHECKING:
 
 Matcher = Literal["sequential", "exhaustive"]
 CAMERA_MODEL = "SIMPLE_RADIAL"
-SEQUENTIAL_OVERLAP = 10  # each frame is matched with its next 10 (and, quadratically, 16, 32, ...)
+# With COLMAP's quadratic overlap (its default) each frame is matched with the 1st, 2nd, 4th, 8th, ...
+# frame after it, 2^0 to 2^(overlap - 1) ahead: 25 pairs for 10 frames, 237 for 50 (measured).
+SEQUENTIAL_OVERLAP = 10
 MIN_REGISTERED_SHARE = 0.5
 MIN_REGISTERED_FRAMES = 4
 MIN_POINTS = 20  # fewer triangulated points than this: no usable geometry
+# A registered frame sees fewer points than this (the median frame): no usable geometry. COLMAP's
+# own default for registering a frame (abs_pose_min_num_inliers).
+MIN_POINTS_PER_FRAME = 30
 # COLMAP drops observations above 4 px; a model whose mean is still above this has not settled.
 MAX_MEAN_REPROJECTION_ERROR = 2.0
 SEED = 0
@@ -62,6 +69,57 @@ class SolveOptions:
     """CPU threads for COLMAP; -1 uses every core."""
 
 
+class NoDepthError(SolveError):
+    """The frames registered but show (almost) no depth: what a camera turning in place gives.
+    A later attempt may still solve the clip (a real one did), but when every attempt fails and
+    any showed this, it is the reason given: it says what to change in the filming."""
+
+
+@dataclass(frozen=True)
+class Attempt:
+    """One try at the camera solve: a matcher and COLMAP mapper options changed from its defaults."""
+
+    name: str
+    matcher: Matcher
+    changes: str
+    """What it changes, in words, for the log and capture.json."""
+    mapper: dict[str, float] = field(default_factory=dict)
+    """IncrementalMapperOptions values that differ from COLMAP's defaults."""
+
+
+# COLMAP itself starts from an initial pair with at least 100 inlier matches seen at 16 degrees or
+# more, and, when that registers too few frames, halves first the count and then the angle, twice
+# (down to 25 and 4). The relaxed attempt starts from those halves, so COLMAP goes down to 12
+# inliers and 2 degrees: a start for clips whose camera moves little between frames.
+RELAXED_INITIAL_PAIR = {"init_min_num_inliers": 50, "init_min_tri_angle": 8.0}
+
+
+def solve_attempts(matcher: Matcher) -> list[Attempt]:
+    """The attempts in the order they are tried, each only when the one before gave no usable model:
+    more frame pairs first (COLMAP's own thresholds on more data), then a lower bar for the start."""
+    default = Attempt("default", matcher, f"{matcher} matching, COLMAP's mapper defaults")
+    exhaustive = Attempt("exhaustive matching", "exhaustive", "every pair of frames matched, COLMAP's mapper defaults")
+    relaxed = Attempt(
+        "relaxed initial pair",
+        "exhaustive",
+        "every pair of frames matched; the initial pair needs 50 inlier matches at 8 degrees "
+        "(COLMAP: 100 at 16), relaxed by COLMAP down to 12 at 2",
+        RELAXED_INITIAL_PAIR,
+    )
+    return [default, relaxed] if matcher == "exhaustive" else [default, exhaustive, relaxed]
+
+
+@dataclass
+class Solved:
+    model: pycolmap.Reconstruction
+    attempt: str
+    """The name of the attempt whose model is used."""
+    matcher: Matcher
+    """That attempt's matcher."""
+    attempts: list[dict]
+    """Every attempt made, in order: name, matcher, changes, result ("used" or the refusal), seconds."""
+
+
 @contextmanager
 def _quiet_colmap(pycolmap) -> Iterator[None]:
     """COLMAP logs every step to stderr; the pipeline prints its own progress and errors instead."""
@@ -80,127 +138,188 @@ def solve_cameras(
     options: SolveOptions,
     log: Log,
     mask_dir: Path | None = None,
-) -> pycolmap.Reconstruction:
-    """Features, matches and incremental mapping for frames_dir/<name>; the largest model.
+) -> Solved:
+    """Features, then the attempts of solve_attempts (matching, incremental mapping, check_model)
+    until one gives a usable model; the largest model of that attempt.
 
-    mask_dir holds COLMAP masks (<name>.png, features on zero pixels are dropped) or is None.
+    mask_dir holds COLMAP masks (<name>.png, features on zero pixels are dropped) or is None; the
+    features, so the masks, are the same for every attempt. Refuses with one SolveError when no
+    attempt gives a usable model: a camera turning in place when any attempt saw one, else the
+    last attempt's reason.
     """
     pycolmap = import_pycolmap()
     database_path = work_dir / "database.db"
+    total = len(image_names)
     with _quiet_colmap(pycolmap):
         pycolmap.set_random_seed(SEED)
-        started = time.perf_counter()
-        reader = pycolmap.ImageReaderOptions()
-        reader.camera_model = CAMERA_MODEL
-        if mask_dir is not None:
-            reader.mask_path = str(mask_dir)
-        extraction = pycolmap.FeatureExtractionOptions()
-        extraction.num_threads = options.threads
-        pycolmap.extract_features(
-            database_path,
-            frames_dir,
-            image_names=image_names,
-            camera_mode=pycolmap.CameraMode.SINGLE,
-            reader_options=reader,
-            extraction_options=extraction,
-            device=pycolmap.Device.cpu,
-        )
-        with pycolmap.Database.open(database_path) as database:
-            keypoints = database.num_keypoints()
-            images = database.num_images()
-        log(
-            f"features: {keypoints} SIFT keypoints in {images} frames "
-            f"({keypoints / max(images, 1):.0f} per frame, {time.perf_counter() - started:.1f} s)"
-        )
-        if images < len(image_names):
-            raise SolveError(f"COLMAP read only {images} of {len(image_names)} frames from {frames_dir}")
-        if keypoints == 0:
-            raise SolveError(
-                f"COLMAP found no features in any of the {images} frames (blank or untextured images); "
-                "film a textured, static background"
-            )
+        _extract_features(pycolmap, database_path, frames_dir, image_names, options, log, mask_dir)
+        attempts = solve_attempts(options.matcher)
+        records: list[dict] = []
+        failures: list[SolveError] = []
+        matched: set[Matcher] = set()
+        for number, attempt in enumerate(attempts, 1):
+            label = f"attempt {number} of {len(attempts)} ({attempt.name})"
+            log(f"{label}: {attempt.changes}")
+            started = time.perf_counter()
+            try:
+                if attempt.matcher not in matched:
+                    _match(pycolmap, database_path, attempt.matcher, total, options, log)
+                    matched.add(attempt.matcher)
+                model = _map(pycolmap, database_path, frames_dir, work_dir / f"sparse-{number}", attempt, total,
+                             options, log)  # fmt: skip
+                check_model(model, total)
+            except SolveError as error:
+                failures.append(error)
+                records.append(_record(attempt, str(error), started))
+                log(f"{label} refused: {error}")
+                continue
+            records.append(_record(attempt, "used", started))
+            log(f"camera solve: {label} succeeded")
+            return Solved(model, attempt.name, attempt.matcher, records)
+    cause = next((failure for failure in failures if isinstance(failure, NoDepthError)), failures[-1])
+    tried = ", ".join(record["name"] for record in records)
+    raise type(cause)(f"{cause} [COLMAP tried: {tried}]")
 
-        started = time.perf_counter()
-        matching = pycolmap.FeatureMatchingOptions()
-        matching.num_threads = options.threads
-        if options.matcher == "sequential":
-            pairing = pycolmap.SequentialPairingOptions()
-            pairing.overlap = SEQUENTIAL_OVERLAP
-            pairing.num_threads = options.threads
-            pycolmap.match_sequential(database_path, matching_options=matching, pairing_options=pairing,
-                                      device=pycolmap.Device.cpu)  # fmt: skip
-        else:
-            pairing = pycolmap.ExhaustivePairingOptions()
-            pairing.num_threads = options.threads
-            pycolmap.match_exhaustive(database_path, matching_options=matching, pairing_options=pairing,
-                                      device=pycolmap.Device.cpu)  # fmt: skip
-        with pycolmap.Database.open(database_path) as database:
-            _, inliers = database.read_two_view_geometry_num_inliers()
-        verified = sum(count > 0 for count in inliers)
-        log(
-            f"matching ({options.matcher}): {len(inliers)} frame pairs compared, {verified} geometrically "
-            f"verified ({time.perf_counter() - started:.1f} s)"
-        )
-        if verified == 0:
-            raise SolveError(
-                f"no two of the {len(image_names)} frames share enough matching features for COLMAP; "
-                "film a textured, static background (not a blank wall), move the camera more slowly, "
-                "or sample more frames (--fps/--frames)"
-            )
 
-        started = time.perf_counter()
-        mapping = pycolmap.IncrementalPipelineOptions()
-        mapping.num_threads = options.threads
-        mapping.random_seed = SEED
-        registered = [0]
+def _record(attempt: Attempt, result: str, started: float) -> dict:
+    return {
+        "name": attempt.name,
+        "matcher": attempt.matcher,
+        "changes": attempt.changes,
+        "result": result,
+        "seconds": round(time.perf_counter() - started, 2),
+    }
 
-        def next_image() -> None:
-            registered[0] += 1
-            if registered[0] % 10 == 0:
-                log(f"mapping: {registered[0] + 2} frames registered ...")
 
-        sparse_dir = work_dir / "sparse"
-        sparse_dir.mkdir()
-        models = pycolmap.incremental_mapping(
-            database_path, frames_dir, sparse_dir, options=mapping, next_image_callback=next_image
-        )
-    if not models:
+def _extract_features(pycolmap, database_path: Path, frames_dir: Path, image_names: list[str],
+                      options: SolveOptions, log: Log, mask_dir: Path | None) -> None:  # fmt: skip
+    started = time.perf_counter()
+    reader = pycolmap.ImageReaderOptions()
+    reader.camera_model = CAMERA_MODEL
+    if mask_dir is not None:
+        reader.mask_path = str(mask_dir)
+    extraction = pycolmap.FeatureExtractionOptions()
+    extraction.num_threads = options.threads
+    pycolmap.extract_features(
+        database_path,
+        frames_dir,
+        image_names=image_names,
+        camera_mode=pycolmap.CameraMode.SINGLE,
+        reader_options=reader,
+        extraction_options=extraction,
+        device=pycolmap.Device.cpu,
+    )
+    with pycolmap.Database.open(database_path) as database:
+        keypoints = database.num_keypoints()
+        images = database.num_images()
+    log(
+        f"features: {keypoints} SIFT keypoints in {images} frames "
+        f"({keypoints / max(images, 1):.0f} per frame, {time.perf_counter() - started:.1f} s)"
+    )
+    if images < len(image_names):
+        raise SolveError(f"COLMAP read only {images} of {len(image_names)} frames from {frames_dir}")
+    if keypoints == 0:
         raise SolveError(
-            f"COLMAP could not start a model from any two of the {len(image_names)} frames (too little "
-            "parallax or texture); move the camera sideways rather than only turning it, film a textured "
-            "static background, or try --matcher exhaustive"
+            f"COLMAP found no features in any of the {images} frames (blank or untextured images); "
+            "film a textured, static background"
+        )
+
+
+def _match(pycolmap, database_path: Path, matcher: Matcher, total: int, options: SolveOptions, log: Log) -> None:
+    """Match the frame pairs `matcher` chooses; pairs already in the database are not matched again."""
+    started = time.perf_counter()
+    with pycolmap.Database.open(database_path) as database:
+        before = len(database.read_two_view_geometry_num_inliers()[0])
+    matching = pycolmap.FeatureMatchingOptions()
+    matching.num_threads = options.threads
+    if matcher == "sequential":
+        pairing = pycolmap.SequentialPairingOptions()
+        pairing.overlap = SEQUENTIAL_OVERLAP
+        pairing.num_threads = options.threads
+        pycolmap.match_sequential(database_path, matching_options=matching, pairing_options=pairing,
+                                  device=pycolmap.Device.cpu)  # fmt: skip
+    else:
+        pairing = pycolmap.ExhaustivePairingOptions()  # no thread count of its own (matching_options has it)
+        pycolmap.match_exhaustive(database_path, matching_options=matching, pairing_options=pairing,
+                                  device=pycolmap.Device.cpu)  # fmt: skip
+    with pycolmap.Database.open(database_path) as database:
+        _, inliers = database.read_two_view_geometry_num_inliers()
+    verified = sum(count > 0 for count in inliers)
+    earlier = f" ({before} of them before)" if before else ""
+    log(
+        f"matching ({matcher}): {len(inliers)} frame pairs compared{earlier}, {verified} geometrically "
+        f"verified ({time.perf_counter() - started:.1f} s)"
+    )
+    if verified == 0:
+        raise SolveError(
+            f"no two of the {total} frames share enough matching features for COLMAP; "
+            "film a textured, static background (not a blank wall), move the camera more slowly, "
+            "or sample more frames (--fps/--frames)"
+        )
+
+
+def _map(pycolmap, database_path: Path, frames_dir: Path, sparse_dir: Path, attempt: Attempt, total: int,
+         options: SolveOptions, log: Log) -> pycolmap.Reconstruction:  # fmt: skip
+    """COLMAP's incremental mapping with the attempt's mapper options; the largest model."""
+    started = time.perf_counter()
+    mapping = pycolmap.IncrementalPipelineOptions()
+    mapping.num_threads = options.threads
+    mapping.random_seed = SEED
+    for name, value in attempt.mapper.items():
+        setattr(mapping.mapper, name, value)
+    registered = [0]
+
+    def next_image() -> None:
+        registered[0] += 1
+        if registered[0] % 10 == 0:
+            log(f"mapping: {registered[0] + 2} frames registered ...")
+
+    sparse_dir.mkdir()
+    models = pycolmap.incremental_mapping(
+        database_path, frames_dir, sparse_dir, options=mapping, next_image_callback=next_image
+    )
+    if not models:
+        log(f"mapping: no model ({time.perf_counter() - started:.1f} s)")
+        raise SolveError(
+            f"COLMAP could not start a model from any two of the {total} frames (too little "
+            "parallax or texture); move the camera sideways rather than only turning it, or film a "
+            "textured static background"
         )
     model = max(models.values(), key=lambda m: (m.num_reg_images(), m.num_points3D()))
     log(
-        f"mapping: {len(models)} model(s); the largest has {model.num_reg_images()} of {len(image_names)} "
+        f"mapping: {len(models)} model(s); the largest has {model.num_reg_images()} of {total} "
         f"frames and {model.num_points3D()} points ({time.perf_counter() - started:.1f} s)"
     )
     return model
 
 
 def check_model(model: pycolmap.Reconstruction, total: int) -> None:
-    """Refuse a model with too few frames or one that did not settle."""
+    """Refuse a model with too few frames, too little depth, or one that did not settle."""
     count = model.num_reg_images()
     needed = max(MIN_REGISTERED_FRAMES, int(MIN_REGISTERED_SHARE * total + 0.999))
-    if model.num_points3D() < MIN_POINTS:
+    seen = [image.num_points3D for image in model.images.values() if image.has_pose]
+    seen_per_frame = float(np.median(seen)) if seen else 0.0
+    if model.num_points3D() < MIN_POINTS or seen_per_frame < MIN_POINTS_PER_FRAME:
         # Frames registered with (almost) nothing triangulated: every ray pair is parallel, which
-        # is what a camera turning in place gives (measured: 5 of 16 frames, 0 points).
-        raise SolveError(
-            f"COLMAP registered {count} of {total} frames but triangulated only {model.num_points3D()} points: "
-            "the camera seems to turn in place, which gives no depth; walk sideways around the subject while "
-            "filming (a pan from one spot cannot be reconstructed)"
+        # is what a camera turning in place gives (measured on a rendered pan: 5 of 16 frames, 0 points;
+        # with the relaxed start on every pair matched in one pass, 9 of 16 frames, 22 points, 12 seen
+        # per frame).
+        raise NoDepthError(
+            f"COLMAP registered {count} of {total} frames but triangulated only {model.num_points3D()} points "
+            f"({seen_per_frame:.0f} seen per frame): the camera seems to turn in place, which gives no depth; "
+            "walk sideways around the subject while filming (a pan from one spot cannot be reconstructed)"
         )
     if count < needed:
         raise SolveError(
             f"COLMAP registered only {count} of {total} frames (at least {needed} needed); try "
-            "--matcher exhaustive, more frames (--fps/--frames), a larger --max-size, a slower camera "
+            "more frames (--fps/--frames), a larger --max-size, a slower camera "
             "or more textured static background, or --mask-dynamic if moving things fill the view"
         )
     error = model.compute_mean_reprojection_error()
     if not error <= MAX_MEAN_REPROJECTION_ERROR:
         raise SolveError(
             f"COLMAP's model did not converge: mean reprojection error {error:.2f} px (at most "
-            f"{MAX_MEAN_REPROJECTION_ERROR} px expected); try --matcher exhaustive or --mask-dynamic"
+            f"{MAX_MEAN_REPROJECTION_ERROR} px expected); try --mask-dynamic if moving things fill the view"
         )
 
 
