@@ -1,3 +1,4 @@
+import os
 import shutil
 from pathlib import Path
 
@@ -12,6 +13,14 @@ from shared_data import lpips_weights_dir
 # Every test sees the built-in fields and liquidgs' own entry points (hexplane), whatever the
 # installed metadata lists: the entry-point table is mocked, see field_plugins.py.
 registry.REGISTRY = registry.FieldRegistry(own_entry_points)
+
+
+def pytest_configure(config):
+    """Under pytest-xdist, each worker gets its share of the cores for torch's intra-op threads: two
+    workers of two threads each on two cores spend their time waiting for each other."""
+    workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
+    if workers > 1:
+        torch.set_num_threads(max(1, (os.cpu_count() or 1) // workers))
 
 
 @pytest.fixture
