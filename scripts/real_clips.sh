@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The real-clip benchmark, rebuilt from public sources (docs/results/real-clips.md):
 #   scripts/real_clips.sh DIR
-# 1. `liquidgs data download real-clips DIR/clips`: the 7 clips, each checked against its recorded
+# 1. `liquidgs data download real-clips DIR/clips`: the 8 clips, each checked against its recorded
 #    size and SHA-256, with DIR/clips/clips.json naming each source and licence (CC BY-NC and
 #    CC BY-NC-SA: keep them out of any repository);
 # 2. `liquidgs data video` on each clip, as the benchmark registered them: 40 frames, longest side

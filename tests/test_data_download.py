@@ -20,6 +20,7 @@ from liquidgs.cli import main as cli
 from liquidgs.data import generate_synthetic
 from liquidgs.data.clips import CLIPS, CLIPS_ENV
 from liquidgs.data.download import ARCHIVES_ENV, download
+from liquidgs.experiments.spec import load_spec
 from tiny_runs import one_line_error
 
 
@@ -313,3 +314,21 @@ def test_the_rebuild_script_wants_one_folder(tmp_path):
     run = subprocess.run(["bash", str(script)], capture_output=True, text=True, cwd=tmp_path)
     assert run.returncode == 2 and run.stderr == "usage: scripts/real_clips.sh DIR\n"
     assert list(tmp_path.iterdir()) == []
+
+
+def test_the_benchmark_spec_trains_every_field_on_clips_of_the_set_with_their_quick_look():
+    """docs/experiments/real-clips.yml: static / MLP / CfC / HexPlane with the quick look that
+    `data video` prints for the clip's registered size (scripts/real_clips.sh's 640 px, 40 frames)."""
+    from liquidgs.commands.data import quick_look_commands
+
+    spec = load_spec(str(Path(__file__).parents[1] / "docs" / "experiments" / "real-clips.yml"))
+    registered = {"apple": (632, 352), "cat": (348, 456), "lady-running": (652, 360), "backpack": (364, 476),
+                  "teddy": (352, 460)}
+    for grid in spec.grids:
+        assert grid.fields == ("static", "mlp", "cfc", "hexplane") and grid.preset == "tiny"
+        (clip,) = grid.scenes
+        assert clip in CLIPS
+        printed = quick_look_commands(Path("scenes") / clip, registered[clip])[1]
+        for setting, value in grid.overrides.items():
+            assert f"--{setting.replace('_', '-')} {value:g}" in printed, (clip, setting, printed)
+    assert {g.scenes[0] for g in spec.grids} == set(registered)

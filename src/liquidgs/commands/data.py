@@ -62,7 +62,7 @@ class DownloadArgs:
     or the real-clip benchmark's videos, each checked against its recorded size and SHA-256."""
 
     dataset: tyro.conf.Positional[str]
-    """dnerf (the 8 D-NeRF scenes), nerfds (the 7 NeRF-DS scenes) or real-clips (7 public demo videos
+    """dnerf (the 8 D-NeRF scenes), nerfds (the 7 NeRF-DS scenes) or real-clips (8 public demo videos
     of a handheld camera; not scenes yet: scripts/real_clips.sh registers them)."""
     dir: tyro.conf.Positional[Path]
     """Folder to create (must not exist): one sub-folder per scene, e.g. DIR/hook; an experiment's
