@@ -323,7 +323,7 @@ def test_the_benchmark_spec_trains_every_field_on_clips_of_the_set_with_their_qu
 
     spec = load_spec(str(Path(__file__).parents[1] / "docs" / "experiments" / "real-clips.yml"))
     registered = {"apple": (632, 352), "cat": (348, 456), "lady-running": (652, 360), "backpack": (364, 476),
-                  "teddy": (352, 460)}
+                  "teddy": (352, 460), "pillow": (364, 476)}
     for grid in spec.grids:
         assert grid.fields == ("static", "mlp", "cfc", "hexplane") and grid.preset == "tiny"
         (clip,) = grid.scenes

@@ -1,10 +1,12 @@
 """The real-clip benchmark's pictures: per clip, one row per test view, ground truth | static | MLP |
-CfC | HexPlane, each run rendered from the test camera as given (the runs' own test split).
+CfC | HexPlane, each run rendered from the test camera as given (<clip>-given.png) and from the test
+camera aligned to that run's frozen scene as the aligned scores are (<clip>-aligned.png; `liquidgs
+eval`'s alignment, camera_opt.aligned_render).
 
     python docs/experiments/real_clips_strips.py EXPERIMENT_DIR OUT_DIR
 
-EXPERIMENT_DIR is `liquidgs experiment run docs/experiments/real-clips.yml`'s folder; OUT_DIR gets
-<clip>.png and <clip>.txt (each row's view and time). A field with no finished run is a grey column.
+EXPERIMENT_DIR is `liquidgs experiment run docs/experiments/real-clips.yml`'s folder; OUT_DIR also gets
+<clip>.txt (each row's view and time). A field with no finished run is a grey column.
 The pictures are made from the clips, whose licences forbid putting them in this repository.
 """
 
@@ -17,6 +19,8 @@ import numpy as np
 import torch
 
 from liquidgs.media import to_uint8, write_png
+from liquidgs.train.camera_opt import aligned_render
+from liquidgs.train.model import render_frame
 from liquidgs.train.run import load_run, load_run_dataset
 
 COLUMNS = ("static", "mlp", "cfc", "hexplane")
@@ -29,29 +33,45 @@ def finished_run(scene_dir: Path, field: str) -> Path | None:
     return runs[-1] if runs else None
 
 
-def strip(scene_dir: Path) -> tuple[np.ndarray, list[str]]:
+def renderers(run, dataset, background) -> dict:
+    """The run's render of a test frame from its camera as given and aligned to the frozen scene."""
+    cfg = run.config
+
+    def rasterise(gaussians, camera):
+        return render_frame(gaussians, camera, sh_degree=run.sh_degree, background=background, backend=cfg.backend).rgb
+
+    aligned = aligned_render(run.at_time, rasterise, cfg.cameras, dataset.camera_extent, cfg.ssim_weight)
+    return {"given": lambda frame: run.render(frame.camera, frame.time, background).rgb, "aligned": aligned}
+
+
+def strips(scene_dir: Path) -> tuple[dict[str, np.ndarray], list[str]]:
     runs = {field: finished_run(scene_dir, field) for field in COLUMNS}
-    done = [run for run in runs.values() if run is not None]
-    if not done:
-        raise SystemExit(f"{scene_dir}: no finished run")
     loaded = {field: load_run(run, "cpu") for field, run in runs.items() if run is not None}
+    if not loaded:
+        raise SystemExit(f"{scene_dir}: no finished run")
     dataset = load_run_dataset(next(iter(loaded.values())).config)
     background = torch.tensor(dataset.background, dtype=torch.float32)
-    rows, notes = [], []
+    render = {field: renderers(run, dataset, background) for field, run in loaded.items()}
+    rows: dict[str, list[np.ndarray]] = {"given": [], "aligned": []}
+    notes = []
     for frame in dataset.test:
         truth = frame.image_uint8()
-        cells = [truth]
-        for field in COLUMNS:
-            if field in loaded:
-                with torch.no_grad():
-                    cells.append(to_uint8(loaded[field].render(frame.camera, frame.time, background).rgb))
-            else:
-                cells.append(np.full_like(truth, 128))
         gap = np.full((truth.shape[0], GAP, 3), 255, np.uint8)
-        rows.append(np.concatenate([c for cell in cells for c in (cell, gap)][:-1], axis=1))
+        for cameras, row in rows.items():
+            cells = [truth]
+            for field in COLUMNS:
+                if field in render:
+                    with torch.no_grad():
+                        cells.append(to_uint8(render[field][cameras](frame)))
+                else:
+                    cells.append(np.full_like(truth, 128))
+            row.append(np.concatenate([c for cell in cells for c in (cell, gap)][:-1], axis=1))
         notes.append(f"view {frame.name}, t = {frame.time:.2f}")
-    blank = np.full((GAP, rows[0].shape[1], 3), 255, np.uint8)
-    return np.concatenate([r for row in rows for r in (row, blank)][:-1], axis=0), notes
+    pictures = {}
+    for cameras, row in rows.items():
+        blank = np.full((GAP, row[0].shape[1], 3), 255, np.uint8)
+        pictures[cameras] = np.concatenate([r for image in row for r in (image, blank)][:-1], axis=0)
+    return pictures, notes
 
 
 def main(experiment: Path, out: Path) -> int:
@@ -59,11 +79,12 @@ def main(experiment: Path, out: Path) -> int:
     for scene_dir in sorted((experiment / "real-clips").iterdir()):
         if not scene_dir.is_dir():
             continue
-        picture, notes = strip(scene_dir)
-        write_png(out / f"{scene_dir.name}.png", picture)
-        header = "columns: ground truth | " + " | ".join(COLUMNS) + " (test cameras as given)"
+        pictures, notes = strips(scene_dir)
+        for cameras, picture in pictures.items():
+            write_png(out / f"{scene_dir.name}-{cameras}.png", picture)
+        header = f"columns: ground truth | {' | '.join(COLUMNS)} (-given: test cameras as given; -aligned: aligned)"
         (out / f"{scene_dir.name}.txt").write_text("\n".join([header, *notes]) + "\n")
-        print(f"{out / scene_dir.name}.png: {len(notes)} test views")
+        print(f"{out / scene_dir.name}-given.png, -aligned.png: {len(notes)} test views")
     return 0
 
 
