@@ -6,6 +6,10 @@ import hashlib
 import http.server
 import io
 import json
+import os
+import re
+import subprocess
+import sys
 import threading
 import zipfile
 from pathlib import Path
@@ -14,7 +18,9 @@ import pytest
 
 from liquidgs.cli import main as cli
 from liquidgs.data import generate_synthetic
+from liquidgs.data.clips import CLIPS, CLIPS_ENV
 from liquidgs.data.download import ARCHIVES_ENV, download
+from liquidgs.experiments.spec import load_spec
 from tiny_runs import one_line_error
 
 
@@ -160,7 +166,7 @@ def test_an_existing_folder_is_refused_before_anything_is_fetched(server, monkey
 
 def test_an_unknown_dataset_is_one_line(tmp_path, capsys):
     assert cli(["data", "download", "hypernerf", str(tmp_path / "h")]) == 2
-    assert "unknown dataset 'hypernerf' (choose from dnerf, nerfds)" in one_line_error(capsys)
+    assert "unknown dataset 'hypernerf' (choose from dnerf, nerfds, real-clips)" in one_line_error(capsys)
     assert left_beside(tmp_path) == []
 
 
@@ -174,3 +180,155 @@ def test_ctrl_c_while_unpacking_leaves_nothing(synthetic, server, monkeypatch, t
     with pytest.raises(KeyboardInterrupt):
         download("dnerf", tmp_path / "dnerf", report=lambda line: None)
     assert left_beside(tmp_path) == []
+
+
+def serve_clips(server, monkeypatch, bodies: dict[str, bytes], **fields_of) -> dict[str, str]:
+    """The clip set becomes `bodies`' clips, served here, each with its true size and SHA-256 unless
+    `fields_of[name]` says otherwise; returns name -> URL."""
+    archives, base = server
+    table, urls = {}, {}
+    for name, body in bodies.items():
+        archives.files[f"/clips/{name}.mp4"] = (body, len(body))
+        urls[name] = f"{base}/clips/{name}.mp4"
+        table[name] = {"url": urls[name], "size": len(body), "sha256": hashlib.sha256(body).hexdigest(),
+                       **fields_of.get(name, {})}  # fmt: skip
+    monkeypatch.setenv(CLIPS_ENV, json.dumps(table))
+    return urls
+
+
+def test_real_clips_are_fetched_checked_and_listed_with_their_licences(server, monkeypatch, tmp_path, capsys):
+    bodies = {"apple": b"apple video bytes" * 100, "bear": b"bear video bytes" * 50}
+    urls = serve_clips(server, monkeypatch, bodies)
+    assert cli(["data", "download", "real-clips", str(tmp_path / "clips")]) == 0
+    out, err = capsys.readouterr()
+    assert f"real-clips: 2 clips in {tmp_path / 'clips'}: apple.mp4, bear.mp4" in out
+    assert "got apple.mp4: 1,700 bytes, SHA-256 as recorded; licence: CC BY-NC 4.0" in err
+    assert {p.name for p in (tmp_path / "clips").iterdir()} == {"apple.mp4", "bear.mp4", "clips.json"}
+    assert (tmp_path / "clips" / "bear.mp4").read_bytes() == bodies["bear"]
+    listing = json.loads((tmp_path / "clips" / "clips.json").read_text())
+    assert listing["bear"]["url"] == urls["bear"]  # the mirror's URL, the table's licence and subject
+    assert listing["bear"]["licence"] == CLIPS["bear"].licence and listing["bear"]["moving"] == CLIPS["bear"].moving
+    assert left_beside(tmp_path) == ["clips"]
+
+
+@pytest.mark.parametrize(
+    ("case", "words"),
+    [
+        ("sha256", "SHA-256 "),
+        ("size", "the server offers 800 bytes, the file is 801 bytes"),
+        ("truncated", "got 400 of the 800 bytes the server announced: truncated"),
+        ("missing", "the server answered 404 Not Found"),
+    ],
+)
+def test_a_real_clip_that_is_not_the_recorded_one_is_one_line_and_leaves_nothing(server, monkeypatch, tmp_path,
+                                                                                  capsys, case, words):  # fmt: skip
+    body = bytes(range(200)) * 4
+    fields_of = {"sha256": {"sha256": "0" * 64}, "size": {"size": len(body) + 1}}.get(case, {})
+    urls = serve_clips(server, monkeypatch, {"apple": b"fine" * 10, "cat": body}, cat=fields_of)
+    if case == "truncated":
+        server[0].files["/clips/cat.mp4"] = (body[:400], len(body))
+    elif case == "missing":
+        server[0].files.pop("/clips/cat.mp4")
+    assert cli(["data", "download", "real-clips", str(tmp_path / "clips")]) == 2
+    line = one_line_error(capsys)
+    assert words in line and urls["cat"] in line, line
+    assert left_beside(tmp_path) == []  # not even the clip that arrived whole
+
+
+def test_a_real_clip_set_that_is_not_json_objects_is_one_line(monkeypatch, tmp_path, capsys):
+    bad_name = '{"../x": {"url": "u", "size": 1, "sha256": "0", "licence": "l", "moving": ""}}'
+    cases = (("[1]", "not a non-empty object of objects"), ('{"apple": {"colour": 1}}', "unknown field 'colour'"),
+             (bad_name, "not a file name"))  # fmt: skip
+    for raw, words in cases:
+        monkeypatch.setenv(CLIPS_ENV, raw)
+        assert cli(["data", "download", "real-clips", str(tmp_path / "clips")]) == 2
+        line = one_line_error(capsys)
+        assert f" {CLIPS_ENV}: " in line and words in line, line
+    assert left_beside(tmp_path) == []
+
+
+def test_the_real_clip_table_pins_each_clip_and_says_its_licence():
+    for name, clip in CLIPS.items():
+        # A commit, not a branch: the bytes behind the recorded SHA-256 cannot change.
+        pinned = r"https://raw\.githubusercontent\.com/[\w.-]+/[\w.-]+/[0-9a-f]{40}/\S+\.mp4"
+        assert re.fullmatch(pinned, clip.url), name
+        assert re.fullmatch(r"[0-9a-f]{64}", clip.sha256) and clip.size > 0, name
+        assert "CC BY" in clip.licence, name
+    assert sum(not clip.moving for clip in CLIPS.values()) >= 1 and sum(bool(c.moving) for c in CLIPS.values()) >= 4
+
+
+STUB_LIQUIDGS = """
+import json, pathlib, sys
+args = sys.argv[1:]
+with open(sys.argv[0] + ".calls", "a") as log:
+    log.write(json.dumps(args) + "\\n")
+if args[:2] == ["data", "download"]:  # the real downloader, against the tests' server
+    from liquidgs.cli import main
+    sys.exit(main(args))
+if args[:2] == ["data", "video"]:  # COLMAP's part, played: one clip refused, the others registered
+    if "refused" in args[2]:
+        print("liquidgs data video: error: COLMAP could not start a model from any two of the 40 frames")
+        sys.exit(2)
+    pathlib.Path(args[args.index("--out") + 1]).mkdir()
+    print("done: 40/40 frames registered, mean reprojection error 0.30 px, 7755 points")
+"""
+
+
+def test_the_rebuild_script_downloads_registers_each_clip_and_runs_the_spec(server, monkeypatch, tmp_path):
+    """scripts/real_clips.sh with the real downloader against 127.0.0.1 and `data video` / `experiment`
+    played by a stub: every clip registered as the benchmark was, a refused clip said and passed over,
+    the spec run on the scenes; run again, only the experiment steps repeat."""
+    serve_clips(server, monkeypatch, {"apple": b"a" * 300, "refused": b"r" * 200, "cat": b"c" * 100},
+                refused={"licence": "CC BY 4.0", "moving": "nothing"})  # fmt: skip
+    stub = tmp_path / "liquidgs_stub.py"
+    stub.write_text(STUB_LIQUIDGS)
+    script = Path(__file__).parents[1] / "scripts" / "real_clips.sh"
+    env = {**os.environ, "LIQUIDGS": f"{sys.executable} {stub}"}
+    run = subprocess.run(["bash", str(script), str(tmp_path / "bench")], env=env, capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    calls = [json.loads(line) for line in (tmp_path / "liquidgs_stub.py.calls").read_text().splitlines()]
+    bench = tmp_path / "bench"
+    assert calls[0] == ["data", "download", "real-clips", str(bench / "clips")]
+    videos = sorted(call[2] for call in calls if call[:2] == ["data", "video"])
+    assert videos == [str(bench / "clips" / f"{name}.mp4") for name in ("apple", "cat", "refused")]
+    for call in calls[1:4]:
+        clip = Path(call[2]).stem
+        assert call[3:] == ["--out", str(bench / "scenes" / clip), "--max-size", "640", "--frames", "40",
+                            "--threads", "1"]  # fmt: skip
+    spec = str(script.parents[1] / "docs" / "experiments" / "real-clips.yml")
+    experiment = str(bench / "experiment")
+    assert calls[4:] == [["experiment", "run", spec, "--data-root", str(bench / "scenes"), "--out", experiment],
+                         ["experiment", "report", experiment]]  # fmt: skip
+    assert "apple: done: 40/40 frames registered" in run.stdout
+    assert "refused: data video refused it: liquidgs data video: error: COLMAP could not start" in run.stderr
+    assert sorted(p.name for p in (bench / "scenes").iterdir()) == ["apple", "cat"]
+    again = subprocess.run(["bash", str(script), str(bench)], env=env, capture_output=True, text=True)
+    assert again.returncode == 0, again.stderr
+    calls_again = [json.loads(line) for line in (tmp_path / "liquidgs_stub.py.calls").read_text().splitlines()][6:]
+    assert [call[:2] for call in calls_again] == [["data", "video"], ["experiment", "run"], ["experiment", "report"]]
+    assert calls_again[0][2] == str(bench / "clips" / "refused.mp4")  # the refused clip is tried again
+
+
+def test_the_rebuild_script_wants_one_folder(tmp_path):
+    script = Path(__file__).parents[1] / "scripts" / "real_clips.sh"
+    run = subprocess.run(["bash", str(script)], capture_output=True, text=True, cwd=tmp_path)
+    assert run.returncode == 2 and run.stderr == "usage: scripts/real_clips.sh DIR\n"
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_the_benchmark_spec_trains_every_field_on_clips_of_the_set_with_their_quick_look():
+    """docs/experiments/real-clips.yml: static / MLP / CfC / HexPlane with the quick look that
+    `data video` prints for the clip's registered size (scripts/real_clips.sh's 640 px, 40 frames)."""
+    from liquidgs.commands.data import quick_look_commands
+
+    spec = load_spec(str(Path(__file__).parents[1] / "docs" / "experiments" / "real-clips.yml"))
+    registered = {"apple": (632, 352), "cat": (348, 456), "lady-running": (652, 360), "backpack": (364, 476),
+                  "teddy": (352, 460), "pillow": (364, 476)}
+    for grid in spec.grids:
+        assert grid.fields == ("static", "mlp", "cfc", "hexplane") and grid.preset == "tiny"
+        (clip,) = grid.scenes
+        assert clip in CLIPS
+        printed = quick_look_commands(Path("scenes") / clip, registered[clip])[1]
+        for setting, value in grid.overrides.items():
+            assert f"--{setting.replace('_', '-')} {value:g}" in printed, (clip, setting, printed)
+    assert {g.scenes[0] for g in spec.grids} == set(registered)

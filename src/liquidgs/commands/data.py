@@ -58,13 +58,16 @@ class CheckArgs:
 
 @dataclass
 class DownloadArgs:
-    """Download a dataset's public archive (D-NeRF or NeRF-DS), check it, unpack it and check every scene."""
+    """Download a dataset's public archive (D-NeRF or NeRF-DS), check it, unpack it and check every scene;
+    or the real-clip benchmark's videos, each checked against its recorded size and SHA-256."""
 
     dataset: tyro.conf.Positional[str]
-    """dnerf (the 8 D-NeRF scenes) or nerfds (the 7 NeRF-DS scenes)."""
+    """dnerf (the 8 D-NeRF scenes), nerfds (the 7 NeRF-DS scenes) or real-clips (8 public demo videos
+    of a handheld camera; not scenes yet: scripts/real_clips.sh registers them)."""
     dir: tyro.conf.Positional[Path]
     """Folder to create (must not exist): one sub-folder per scene, e.g. DIR/hook; an experiment's
-    --data-root is the folder holding DIR when DIR is named dnerf or nerfds."""
+    --data-root is the folder holding DIR when DIR is named dnerf or nerfds. real-clips: DIR/<clip>.mp4
+    and DIR/clips.json (each clip's source and licence)."""
 
 
 @dataclass(kw_only=True)

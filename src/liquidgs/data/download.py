@@ -1,4 +1,5 @@
-"""`liquidgs data download dnerf|nerfds DIR`: a dataset's public archive, fetched, checked and unpacked.
+"""`liquidgs data download dnerf|nerfds DIR`: a dataset's public archive, fetched, checked and unpacked
+(`real-clips`: the real-clip benchmark's videos, data.clips).
 
 Nothing that looks like a dataset appears until every check has passed: the archive is downloaded
 to a temporary file beside DIR, its size checked (against the server's Content-Length and, where
@@ -28,6 +29,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
 
+from liquidgs.data.clips import SET_NAME as CLIP_SET
+from liquidgs.data.clips import download_clips
 from liquidgs.data.loading import check_dataset
 from liquidgs.data.scene import DataConfig
 from liquidgs.errors import ConfigError
@@ -103,28 +106,29 @@ class Downloaded:
     """What the archive was checked against."""
 
 
-def _fetch(archive: Archive, path: Path, report: Callable[[str], None]) -> tuple[int, str]:
-    """The archive's bytes into `path`; (size, sha256). One line for a server error or a broken download."""
+def fetch(url: str, expected: int | None, path: Path, report: Callable[[str], None]) -> tuple[int, str]:
+    """The bytes at `url` into `path`; (size, sha256). One line for a server error, a broken download,
+    or a server that offers other than the `expected` bytes (None: not known)."""
     digest, size = hashlib.sha256(), 0
     try:
-        with urllib.request.urlopen(archive.url, timeout=TIMEOUT_S) as response, path.open("wb") as out:
+        with urllib.request.urlopen(url, timeout=TIMEOUT_S) as response, path.open("wb") as out:
             announced = response.headers.get("Content-Length")
             announced = int(announced) if announced and announced.isdigit() else None
-            if archive.size is not None and announced is not None and announced != archive.size:
-                raise ConfigError(f"{archive.url}: the server offers {announced:,} bytes, the archive is "
-                                  f"{archive.size:,} bytes: not the published archive")  # fmt: skip
-            report(f"downloading {archive.url} ({f'{announced / 2**20:,.1f} MiB' if announced else 'size not given'})")
+            if expected is not None and announced is not None and announced != expected:
+                raise ConfigError(f"{url}: the server offers {announced:,} bytes, the file is "
+                                  f"{expected:,} bytes: not the published file")  # fmt: skip
+            report(f"downloading {url} ({f'{announced / 2**20:,.1f} MiB' if announced else 'size not given'})")
             while chunk := response.read(CHUNK):
                 out.write(chunk)
                 digest.update(chunk)
                 size += len(chunk)
     except urllib.error.HTTPError as err:
-        raise ConfigError(f"{archive.url}: the server answered {err.code} {err.reason}") from None
+        raise ConfigError(f"{url}: the server answered {err.code} {err.reason}") from None
     except (urllib.error.URLError, http.client.HTTPException, OSError) as err:
         reason = getattr(err, "reason", None) or err
-        raise ConfigError(f"{archive.url}: the download broke off after {size:,} bytes ({reason})") from None
+        raise ConfigError(f"{url}: the download broke off after {size:,} bytes ({reason})") from None
     if announced is not None and size != announced:
-        raise ConfigError(f"{archive.url}: got {size:,} of the {announced:,} bytes the server announced: truncated")
+        raise ConfigError(f"{url}: got {size:,} of the {announced:,} bytes the server announced: truncated")
     return size, digest.hexdigest()
 
 
@@ -151,21 +155,27 @@ def _scenes(root: Path, archive: Archive) -> list[Path]:
     return [p for p in folders if p != root]
 
 
-def download(dataset: str, dest: Path, report: Callable[[str], None] = print) -> Downloaded:
-    """Fetch, check, unpack and validate `dataset` into the new folder `dest` (see the module's text)."""
-    table = archives()
-    if dataset not in table:
-        raise ConfigError(f"unknown dataset '{dataset}' (choose from {', '.join(table)})")
-    archive = table[dataset]
+def _new_folder(dest: Path) -> Path:
+    """`dest`, refused when it exists or its parent does not, before anything is fetched."""
     dest = Path(dest)
     if dest.exists() or dest.is_symlink():
         raise ConfigError(f"{dest}: already exists (data download writes a new folder; remove it or name another)")
     if not dest.parent.is_dir():
         raise ConfigError(f"{dest.parent}: no such folder (data download creates {dest.name} inside it)")
+    return dest
+
+
+def download(dataset: str, dest: Path, report: Callable[[str], None] = print) -> Downloaded:
+    """Fetch, check, unpack and validate `dataset` into the new folder `dest` (see the module's text)."""
+    table = archives()
+    if dataset not in table:
+        raise ConfigError(f"unknown dataset '{dataset}' (choose from {', '.join([*table, CLIP_SET])})")
+    archive = table[dataset]
+    dest = _new_folder(dest)
     stem = f".{dest.name}.download-{os.getpid()}"
     zipped, unpacked = dest.with_name(stem + ".zip"), dest.with_name(stem)
     try:
-        size, sha256 = _fetch(archive, zipped, report)
+        size, sha256 = fetch(archive.url, archive.size, zipped, report)
         checks = _check_archive(archive, zipped, size, sha256)
         report(f"got {size:,} bytes, SHA-256 {sha256} ({checks}); unpacking")
         with zipfile.ZipFile(zipped) as source:
@@ -194,7 +204,13 @@ def download(dataset: str, dest: Path, report: Callable[[str], None] = print) ->
 
 
 def main(dataset: str, dest: Path) -> int:
-    result = download(dataset, dest, lambda line: print(line, file=sys.stderr, flush=True))
+    report = lambda line: print(line, file=sys.stderr, flush=True)  # noqa: E731 - one line, used twice
+    if dataset == CLIP_SET:
+        table = download_clips(_new_folder(dest), report)
+        print(f"{CLIP_SET}: {len(table)} clips in {dest}: {', '.join(f'{name}.mp4' for name in table)}")
+        print(f"each checked against its recorded size and SHA-256; sources and licences: {Path(dest) / 'clips.json'}")
+        return 0
+    result = download(dataset, dest, report)
     print(f"{result.dataset}: {len(result.scenes)} scenes in {result.folder}: {', '.join(result.scenes)}")
     print(f"archive: {result.size:,} bytes, SHA-256 {result.sha256} ({result.checks})")
     return 0

@@ -175,8 +175,9 @@ def _second_scores_section(collection: Collection, md: list[str]) -> None:
     md += ["## Aligned and masked scores", "",
            "Scored apart from the tables above, never in their columns. *Aligned*: "
            + ("; ".join(sorted(p for p in protocols if p)) or "-")
-           + ". *Masks*: `liquidgs eval --mask` of the run (its eval.json), PSNR inside and outside the "
-           "per-view masks of the moving subject, test cameras as given; a dash where the run has none.", "",
+           + ". *Masks*: `liquidgs eval --run RUN --mask MASKS` of the run (its eval.json), PSNR inside and "
+           "outside the per-view masks of the moving subject, test cameras as given; a dash where the run has "
+           "none.", "",
            table.to_markdown()]  # fmt: skip
 
 
