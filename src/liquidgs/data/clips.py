@@ -25,6 +25,7 @@ from collections.abc import Callable
 from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 
+from liquidgs.data.fetch import fetch
 from liquidgs.errors import ConfigError
 
 CLIPS_ENV = "LIQUIDGS_REAL_CLIPS"
@@ -100,8 +101,6 @@ def clips() -> dict[str, Clip]:
 def download_clips(dest: Path, report: Callable[[str], None]) -> dict[str, Clip]:
     """Fetch every clip into the new folder `dest` as <name>.mp4, each checked against its recorded
     size and SHA-256, with clips.json (source, licence, what moves); nothing at `dest` on failure."""
-    from liquidgs.data.download import fetch  # here: download imports this module
-
     table = clips()
     staged = dest.with_name(f".{dest.name}.download-{os.getpid()}")
     try:
