@@ -120,15 +120,22 @@ def image_psnr(a: np.ndarray, b: np.ndarray) -> float:
     return float(psnr(torch.from_numpy(a / 255.0), torch.from_numpy(b / 255.0)))
 
 
-@pytest.mark.slow  # Chromium, as the viewer's browser test
-def test_player_in_chromium_matches_liquidgs_render(browser, served, baked):
+def opened_page(browser, url: str):
+    """A new page at url/index.html once it says it is ready, with the lists its console errors and
+    requests are gathered into."""
     page = browser.new_page()
     problems, requests = [], []
     page.on("console", lambda message: message.type == "error" and problems.append(message.text))
     page.on("pageerror", lambda error: problems.append(str(error)))
     page.on("request", lambda request: requests.append(request.url))
-    page.goto(served + "/index.html")
+    page.goto(url + "/index.html")
     page.wait_for_selector("body[data-ready=true]", timeout=60_000)
+    return page, problems, requests
+
+
+@pytest.mark.slow  # Chromium, as the viewer's browser test
+def test_player_in_chromium_matches_liquidgs_render(browser, served, baked):
+    page, problems, requests = opened_page(browser, served)
 
     run = load_run(baked, "cpu")
     dataset = load_run_dataset(run.config)
@@ -238,13 +245,7 @@ def splatv_site(splatv, tmp_path_factory):
 def gsplat_js_shots(browser, url: str, scene: str, views: list, background: list[int], repair_sort_keys=False):
     """gsplat.js' pictures of `scene` (a file under `url`) at each (cameras.json camera, time),
     its frame rate, and the console errors and requests of the page."""
-    page = browser.new_page()
-    problems, requests = [], []
-    page.on("console", lambda message: message.type == "error" and problems.append(message.text))
-    page.on("pageerror", lambda error: problems.append(str(error)))
-    page.on("request", lambda request: requests.append(request.url))
-    page.goto(url + "/index.html")
-    page.wait_for_selector("body[data-ready=true]", timeout=60_000)
+    page, problems, requests = opened_page(browser, url)
     page.evaluate("(args) => player.load(...args)", [scene, background, repair_sort_keys])
     shots = []
     for view, time in views:
