@@ -163,15 +163,21 @@ def solve_cameras(
         attempts = solve_attempts(options.matcher)
         records: list[dict] = []
         failures: list[SolveError] = []
-        matched: set[Matcher] = set()
+        # Each matcher runs once: a later attempt with the same matcher reuses its pairs, or its refusal.
+        matching: dict[Matcher, SolveError | None] = {}
         for number, attempt in enumerate(attempts, 1):
             label = f"attempt {number} of {len(attempts)} ({attempt.name})"
             log(f"{label}: {attempt.changes}")
             started = time.perf_counter()
             try:
-                if attempt.matcher not in matched:
-                    _match(pycolmap, database_path, attempt.matcher, total, options, log)
-                    matched.add(attempt.matcher)
+                if attempt.matcher not in matching:
+                    try:
+                        _match(pycolmap, database_path, attempt.matcher, total, options, log)
+                        matching[attempt.matcher] = None
+                    except SolveError as error:
+                        matching[attempt.matcher] = error
+                if matching[attempt.matcher] is not None:
+                    raise matching[attempt.matcher]
                 model = _map(pycolmap, database_path, frames_dir, work_dir / f"sparse-{number}", attempt, total,
                              options, log)  # fmt: skip
                 check_model(model, total, attempt.min_registered_share)
