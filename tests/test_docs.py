@@ -11,6 +11,7 @@ import unicodedata
 from pathlib import Path
 
 import pytest
+import yaml
 
 from liquidgs.commands.catalog import all_option_strings, check_command_line, commands
 from liquidgs.errors import ConfigError
@@ -210,6 +211,28 @@ def test_a_broken_link_a_missing_anchor_and_a_removed_flag_are_each_one_line(tmp
     assert found[3].startswith(f"docs/getting-started.md:{lines + 4}: 'liquidgs train --data scenes/x --no-such-flag")
     assert "unrecognized arguments: --no-such-flag" in found[3]
     assert all("\n" not in line for line in found)
+
+
+def nav_pages(entries) -> set[str]:
+    """The page paths the site's nav names, at any depth (an entry is a path or {title: entries})."""
+    found = set()
+    for entry in entries:
+        if isinstance(entry, str):
+            found.add(entry)
+        else:
+            for value in entry.values():
+                found |= {value} if isinstance(value, str) else nav_pages(value)
+    return found
+
+
+def test_every_docs_page_is_in_the_site_nav():
+    # `mkdocs build --strict` (run by .ci/run after the tests) refuses a page left out of the nav;
+    # this holds the same rule inside `make test`, where it names the page.
+    site = yaml.safe_load((ROOT / "mkdocs.yml").read_text())
+    listed = nav_pages(site["nav"])
+    on_disk = {str(path.relative_to(DOCS)) for path in DOCS.rglob("*.md")} | set(GENERATED)
+    assert not on_disk - listed, f"pages missing from mkdocs.yml nav: {sorted(on_disk - listed)}"
+    assert not listed - on_disk, f"mkdocs.yml nav names pages that do not exist: {sorted(listed - on_disk)}"
 
 
 def test_slugs_are_those_mkdocs_and_github_give():
