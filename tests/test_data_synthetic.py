@@ -148,3 +148,5 @@ def test_moving_mask_marks_where_the_ground_truth_moves():
     assert not moving_mask("puppet", K, cam_to_world, size, size, 0.35, 0.0).any()  # no time step, no motion
     # Slow rigid motion moves fewer pixels per frame than the puppet's swinging limbs.
     assert moving_mask("spinner", K, cam_to_world, size, size, 0.35, 1 / 79).mean() < moving.mean()
+    # The still scene is the control: nothing in it moves at any time.
+    assert not any(moving_mask("still", K, cam_to_world, size, size, t, 1 / 79).any() for t in (0.0, 0.35, 0.9))

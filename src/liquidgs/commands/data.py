@@ -23,7 +23,8 @@ class SynthArgs:
 
     scene: str
     """Scene name, one of liquidgs.data.SYNTHETIC_SCENES: puppet (fast articulated motion, the
-    default scene of the demo) or spinner (slow rigid motion)."""
+    default scene of the demo), spinner (slow rigid motion) or still (the puppet at rest: nothing
+    moves, a control for what a field gains without motion)."""
     out: Path
     """Output folder; gets dnerf/ and nerfies/ subfolders."""
     size: int = 128

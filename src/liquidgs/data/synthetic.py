@@ -171,7 +171,13 @@ def _spinner(time: float) -> list[Primitive]:
     ]
 
 
-SCENES: dict[str, Callable[[float], list[Primitive]]] = {"puppet": _puppet, "spinner": _spinner}
+def _still(time: float) -> list[Primitive]:
+    """Nothing moves: the puppet standing at rest. A control: where there is no motion, whatever a
+    deformation field gains over the static model is something other than motion (camera error)."""
+    return _puppet(0.0)
+
+
+SCENES: dict[str, Callable[[float], list[Primitive]]] = {"puppet": _puppet, "spinner": _spinner, "still": _still}
 SYNTHETIC_SCENES: tuple[str, ...] = tuple(SCENES)
 DEFAULT_SYNTHETIC_SCENE = "puppet"
 
