@@ -19,7 +19,7 @@ from liquidgs.commands.train import resolve_config
 from liquidgs.data import generate_synthetic
 from liquidgs.data.perturb import rotation_about
 from liquidgs.errors import LiquidGSError
-from liquidgs.eval.poses import pose_errors
+from liquidgs.eval.poses import pose_errors, reprojection_error
 from liquidgs.train.camera_opt import (
     CameraRefineConfig,
     CameraRefinement,
@@ -168,6 +168,25 @@ def test_a_refining_run_resumes_bit_exactly_and_writes_its_corrections(capture, 
     assert written["max_rotation_deg"] == max(f["rotation_deg"] for f in written["frames"]) > 0
 
 
+def test_a_run_on_noisy_poses_reports_how_far_refinement_brought_them_back(tmp_path):
+    """What the stress tests' pose noise asks of refinement, inside training: on the still scene
+    (nothing moves, so only the cameras can explain a view's misfit) the refined training cameras
+    reproject the scene's points closer to where the true cameras do than those given did. Measured
+    at 64 px, 48 frames, 600 iterations: 1.42 px -> 0.30 px (static model); here (48 px, 300
+    iterations) 1.07 -> 0.31 px, while the rotation error falls only from 0.90 to 0.72 deg."""
+    scene = generate_synthetic("still", tmp_path / "still", size=48, frames=48, seed=0)
+    flags = ["--data", str(scene / "nerfies"), "--field", "static", "--out", str(tmp_path / "run"), *tiny_flags({
+        "iterations": 300, "optim.means_lr_steps": 300, "densify.stop": 250, "densify.opacity_reset_interval": 150,
+        "eval.start": 300, "checkpoint_every": 300, "cameras.align_steps": 5,
+        "perturb.pose_rot_deg": 1.0, "perturb.pose_trans": 0.01,
+    })]  # fmt: skip
+    run_train(flags)
+    recovery = json.loads((tmp_path / "run" / "cameras_refined.json").read_text())["pose_recovery"]
+    before, after = recovery["before"], recovery["after"]
+    assert before["aligned_rotation_deg"] > 0.5 and before["reprojection_px"] > 0.5
+    assert after["reprojection_px"] < 0.6 * before["reprojection_px"], recovery
+
+
 def test_a_run_made_before_refinement_resumes_without_it(capture, tmp_path, monkeypatch, capsys):
     """Its config.yml has no `cameras` and its checkpoint none: it continues as it was trained."""
     out = tmp_path / "old"
@@ -222,6 +241,36 @@ def test_pose_errors_see_through_the_gauge():
     assert errors["rotation_deg"] > 2.9 and errors["translation"] > 0.2
     assert errors["aligned_rotation_deg"] < 1e-3 and errors["aligned_translation"] < 1e-4
     assert abs(errors["gauge_scale"] - 1 / 1.1) < 1e-4 and abs(errors["gauge_rotation_deg"] - 3.0) < 1e-3
+
+
+def test_reprojection_error_sees_what_the_images_see():
+    """Cameras orbited by a degree about the object they look at (alternately left and right, so no
+    gauge absorbs it) are a degree off in rotation, yet put the object nearly where the true ones do;
+    turned by the same degree about their own centres they put it about f x 1 deg = 0.75 px off."""
+    truth = torch.stack(_ring(6)).double()
+    points = (torch.rand(500, 3, generator=torch.Generator().manual_seed(1)) - 0.5) * 0.5
+    intrinsics = torch.stack([_camera(v.float()).K for v in truth])
+    up = np.array([0.0, 1.0, 0.0])
+    orbited, turned = [], []
+    for i, view in enumerate(truth):
+        sign = 1.0 if i % 2 else -1.0
+        orbit = torch.eye(4, dtype=torch.float64)
+        orbit[:3, :3] = torch.from_numpy(rotation_about(up, math.radians(sign)))
+        orbited.append(view @ orbit.T)  # the world turned the other way about the origin: the camera orbits it
+        turned.append(_moved(view.float(), sign, [0.0, 0.0, 0.0], axis=tuple(view[1, :3].tolist())).double())
+    orbit_errors, turn_errors = pose_errors(torch.stack(orbited), truth), pose_errors(torch.stack(turned), truth)
+    assert orbit_errors["aligned_rotation_deg"] > 0.5 and turn_errors["aligned_rotation_deg"] > 0.5
+    # Measured 0.21 px against 0.75 (the centres' gauge fit shrinks the alternating orbit by 1.3%).
+    orbit_pixels = reprojection_error(torch.stack(orbited), truth, intrinsics, points)
+    turn_pixels = reprojection_error(torch.stack(turned), truth, intrinsics, points)
+    assert orbit_pixels < 0.3 and turn_pixels > 0.6 and turn_pixels > 3 * orbit_pixels
+    # The same cameras in a moved, turned and scaled world reproject exactly.
+    world = torch.eye(4, dtype=torch.float64)
+    world[:3, :3] = 1.2 * torch.from_numpy(rotation_about(np.array([0.0, 0.6, 0.8]), math.radians(4.0)))
+    world[:3, 3] = torch.tensor([0.3, -0.1, 0.2], dtype=torch.float64)
+    moved = truth @ torch.linalg.inv(world)
+    moved[:, :3, :] /= torch.linalg.norm(moved[:, :3, :3], dim=-1, keepdim=True)
+    assert reprojection_error(moved, truth, intrinsics, points) < 1e-6
 
 
 def test_refinement_recovers_perturbed_poses_on_a_frozen_scene():

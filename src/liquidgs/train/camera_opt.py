@@ -35,6 +35,7 @@ from liquidgs.data.loading import detect_format
 from liquidgs.data.scene import DataConfig
 from liquidgs.errors import ConfigError, DataError, LiquidGSError
 from liquidgs.eval.metrics import ssim
+from liquidgs.eval.poses import pose_recovery
 from liquidgs.train.model import Deformed
 from liquidgs.train.schedules import log_linear_lr
 
@@ -168,9 +169,26 @@ def rotation_deg(omega: torch.Tensor) -> torch.Tensor:
 class CameraRefinement:
     """The corrections of a run's training cameras, their Adam and their schedule."""
 
-    def __init__(self, cfg: CameraRefineConfig, frames: list, extent: float, iterations: int, device, adam_eps: float):
+    def __init__(
+        self,
+        cfg: CameraRefineConfig,
+        frames: list,
+        extent: float,
+        iterations: int,
+        device,
+        adam_eps: float,
+        true_cameras: list[Camera] | None = None,
+        points: torch.Tensor | None = None,
+    ):
+        """`true_cameras`: where the frames' cameras really are, when the run made them noisy on purpose
+        (the pose perturbation): the report then says how far refinement brought them back, measured
+        with the scene's `points` too when it has them."""
         self.cfg = cfg
         self.names = [frame.name for frame in frames]
+        self.given = torch.stack([frame.camera.viewmat for frame in frames]).cpu()
+        self.intrinsics = torch.stack([frame.camera.K for frame in frames]).cpu()
+        self.truth = None if true_cameras is None else torch.stack([camera.viewmat for camera in true_cameras]).cpu()
+        self.points = points
         self.extent = extent
         self.lr_steps = cfg.lr_steps or iterations
         self.rotations = torch.nn.Parameter(torch.zeros(len(frames), 3, device=device))
@@ -237,6 +255,12 @@ class CameraRefinement:
             self.translations.copy_(saved["translations"])
         self.optimizer.load_state_dict(saved["optimizer"])
 
+    def refined_viewmats(self) -> torch.Tensor:
+        """The training cameras' world->camera matrices [N, 4, 4] with their corrections."""
+        with torch.no_grad():
+            rotations, translations = self.rotations.detach().cpu(), self.translations.detach().cpu()
+            return torch.stack([corrected_viewmat(v, rotations[i], translations[i]) for i, v in enumerate(self.given)])
+
     def report(self, iteration: int) -> dict:
         """cameras_refined.json: how far each training camera moved, readable by a user."""
         with torch.no_grad():
@@ -252,6 +276,16 @@ class CameraRefinement:
             }
             for i, name in enumerate(self.names)
         ]
+        recovery = {}
+        if self.truth is not None:
+            recovery = {"pose_recovery": {
+                "about": "the training cameras were made noisy on purpose (perturb.pose-*): mean error against the "
+                "true cameras of those trained from (before) and of the refined ones (after): rotation (degrees) and "
+                "centre (world units), raw and after the similarity that best maps them onto the true ones (the "
+                "world's placement is free), and reprojection_px, how far the scene's points land (pixels) from "
+                "where the true cameras put them after that similarity",
+                **pose_recovery(self.given, self.refined_viewmats(), self.truth, self.intrinsics, self.points),
+            }}  # fmt: skip
         return {
             "iteration": iteration,
             "about": "per training frame, the learned correction D of its world->camera matrix V (the camera "
@@ -261,6 +295,7 @@ class CameraRefinement:
             "camera_extent": self.extent,
             "max_rotation_deg": max((f["rotation_deg"] for f in frames), default=0.0),
             "max_translation": max((f["translation"] for f in frames), default=0.0),
+            **recovery,
             "frames": frames,
         }
 

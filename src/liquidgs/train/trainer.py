@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from liquidgs.data import SceneDataset, spread_extent
+from liquidgs.data import SceneDataset, load_dataset, spread_extent
 from liquidgs.data.scene import MIN_CAMERA_EXTENT
 from liquidgs.errors import ConfigError, LiquidGSError
 from liquidgs.eval import LPIPS, LPIPSUnavailable, evaluate_views, ssim
@@ -121,7 +121,8 @@ class Trainer:
         self.device = resolve_device(cfg.device)
         if cfg.backend == "gsplat" and self.device.type != "cuda":
             raise ConfigError("--backend gsplat needs a CUDA device (gsplat has no CPU path); use auto or torch")
-        self.dataset = load_run_dataset(cfg, dataset)  # `dataset`, when given, is the clean scene
+        clean = dataset if dataset is not None else load_dataset(cfg.data)  # `dataset`, when given, is the clean scene
+        self.dataset = load_run_dataset(cfg, clean)
         if not self.dataset.train:
             raise LiquidGSError(f"{cfg.data.path}: the training split is empty")
         self.background = torch.tensor(self.dataset.background, dtype=torch.float32, device=self.device)
@@ -130,9 +131,7 @@ class Trainer:
         self.params = self._initial_gaussians().to(self.device)
         self.field = build_field(cfg.field_config()).to(self.device)
         self.field.begin_training(self.params["means"].detach())  # its set-up hook; checks its outputs
-        self.optimizers = {
-            key: self._adam([self.params[key]], self._static_lr(key)) for key in PARAM_KEYS
-        }
+        self.optimizers = {key: self._adam([self.params[key]], self._static_lr(key)) for key in PARAM_KEYS}
         self.field_optimizer = self._field_adam()
         self.notes: list[str] = []
         """Things the user should know about this run (printed by the train command)."""
@@ -140,7 +139,7 @@ class Trainer:
         self.strategy_state = self.strategy.initial_state(self.params["means"].shape[0], self.device)
         self.cameras = (  # camera refinement: a correction per training camera, or None
             CameraRefinement(cfg.cameras, self.dataset.train, self.strategy.scene_extent, cfg.iterations,
-                             self.device, cfg.optim.adam_eps)
+                             self.device, cfg.optim.adam_eps, self._true_cameras(clean), self.dataset.points)
             if refines(cfg.cameras, self.dataset.format) else None
         )  # fmt: skip
         self.motion = (  # neighbour rigidity / isometry on the deformation, or None
@@ -156,6 +155,13 @@ class Trainer:
         """Times the phases of each training step when set to a PhaseClock (bench train)."""
 
     # ----------------------------------------------------------------- set-up
+    def _true_cameras(self, clean: SceneDataset) -> list | None:
+        """The training frames' cameras before the pose perturbation made them noisy (None without one)."""
+        if not (self.cfg.perturb.pose_rot_deg or self.cfg.perturb.pose_trans):
+            return None
+        by_name = {frame.name: frame.camera for frame in clean.train}
+        return [by_name[frame.name] for frame in self.dataset.train]
+
     def _initial_gaussians(self) -> torch.nn.ParameterDict:
         cfg, ds = self.cfg, self.dataset
         if ds.points is not None:
