@@ -72,8 +72,14 @@ def test_eval_scores_given_aligned_and_masked_apart(refined_run, tmp_path, capsy
     assert masked["cameras"] == "as given"
     assert masked["inside"]["share"] == pytest.approx(8 / 24) and masked["outside"]["share"] == pytest.approx(16 / 24)
     assert all(masked[r]["psnr"] > 5 and 0 < masked[r]["ssim"] <= 1 for r in ("inside", "outside"))
+    # The refined run is scored inside the masks a second time, from the aligned test cameras, labelled.
+    aligned = record["masked_aligned"]
+    assert aligned["cameras"] == record["aligned"]["cameras"] and aligned["masks"] == masked["masks"]
+    assert aligned["inside"]["share"] == masked["inside"]["share"]
+    assert all(aligned[r]["psnr"] > 5 and aligned[r]["psnr"] != masked[r]["psnr"] for r in ("inside", "outside"))
     out = capsys.readouterr().out
     assert "test cameras aligned to the scene: PSNR" in out and "inside the masks (33.3% of pixels)" in out
+    assert "inside the masks (33.3% of pixels), test cameras aligned: PSNR" in out
 
 
 @pytest.mark.parametrize("fault", ["size", "count"])

@@ -469,18 +469,24 @@ def test_aligned_and_masked_scores_have_their_own_labelled_columns(hand_built):
     masked = hand_built / "dnerf/lego/mlp/l0.0-s1"
     (masked / "eval.json").write_text(json.dumps({"masked": {"masks": "m", "cameras": "as given",
                                                              "inside": {"psnr": 17.89, "ssim": 0.5, "share": 0.2},
-                                                             "outside": {"psnr": 35.67, "ssim": 0.9, "share": 0.8}}}))
+                                                             "outside": {"psnr": 35.67, "ssim": 0.9, "share": 0.8}},
+                                                  "masked_aligned": {"masks": "m", "cameras": "aligned (protocol)",
+                                                             "inside": {"psnr": 19.01, "ssim": 0.6, "share": 0.2},
+                                                             "outside": {"psnr": 37.02, "ssim": 0.9, "share": 0.8}}}))
     text = write_report(hand_built).read_text()
     main, section = text.split("## Aligned and masked scores")[0], text.split("## Aligned and masked scores")[1]
-    assert "41.23" not in main and "17.89" not in main and "35.67" not in main  # never mixed into given scores
+    assert not any(score in main for score in ("41.23", "17.89", "35.67", "19.01", "37.02"))  # never mixed in
     section = section.split("\n## ")[0]
     assert "PSNR, test cameras as given (final) | PSNR, test cameras aligned (final)" in section
     assert "each test camera aligned (protocol)" in section
     hook = fake_psnr("hook", "mlp", 0.0, 0)
-    assert f"| dnerf / hook | D-3DGS (MLP) | 0 | {hook:.2f} | 41.23 | 0.9876 | - | - |" in section
+    assert f"| dnerf / hook | D-3DGS (MLP) | 0 | {hook:.2f} | 41.23 | 0.9876 | - | - | - | - |" in section
     lego = fake_psnr("lego", "mlp", 0.0, 1)
-    assert f"| dnerf / lego | D-3DGS (MLP) | 1 | {lego:.2f} | - | - | 17.89 | 35.67 |" in section
+    assert f"| dnerf / lego | D-3DGS (MLP) | 1 | {lego:.2f} | - | - | 17.89 | 35.67 | 19.01 | 37.02 |" in section
     assert section.count("| dnerf /") == 2  # runs without second scores get no row
     (masked / "eval.json").write_text(json.dumps({"masked": {"inside": {}}}))
     with pytest.raises(LiquidGSError, match="eval.json: field 'masked' must be an object with inside, outside"):
+        write_report(hand_built)
+    (masked / "eval.json").write_text(json.dumps({"masked_aligned": {"outside": {}}}))
+    with pytest.raises(LiquidGSError, match="eval.json: field 'masked_aligned' must be an object with inside"):
         write_report(hand_built)

@@ -67,18 +67,22 @@ class RunRecord:
     def evaluation(self, which: str) -> dict:
         return self.results[which]
 
-    def second_scores(self) -> tuple[dict | None, dict | None]:
+    def second_scores(self) -> tuple[dict | None, dict | None, dict | None]:
         """The labelled second scores: the final test split with test cameras aligned to the scene
         (results.json's final_aligned, runs that refine), and `liquidgs eval --mask`'s inside / outside
-        scores (eval.json's masked, cameras as given); None where the run has none."""
+        scores (eval.json's masked, cameras as given, and masked_aligned, test cameras aligned); None
+        where the run has none."""
         aligned = self.results.get("final_aligned") or None
         eval_path = self.folder / EVAL
-        masked = _read_json(eval_path, EVAL).get("masked") if eval_path.is_file() else None
+        evaluation = _read_json(eval_path, EVAL) if eval_path.is_file() else {}
+        masked, masked_aligned = evaluation.get("masked"), evaluation.get("masked_aligned")
+        regions = ("inside", "outside")
         for what, record, path, keys in (("final_aligned", aligned, self.folder / RESULTS, ("psnr", "ssim")),
-                                         ("masked", masked, eval_path, ("inside", "outside"))):  # fmt: skip
+                                         ("masked", masked, eval_path, regions),
+                                         ("masked_aligned", masked_aligned, eval_path, regions)):  # fmt: skip
             if record is not None and not (isinstance(record, dict) and all(k in record for k in keys)):
                 raise LiquidGSError(f"{path}: field '{what}' must be an object with {', '.join(keys)}")
-        return aligned, masked
+        return aligned, masked, masked_aligned
 
 
 @dataclass(frozen=True)

@@ -156,19 +156,20 @@ def _second_scores_section(collection: Collection, md: list[str]) -> None:
     score, one row per run that has either; nothing when no run has them."""
     table = PlainTable(["Dataset / scene", "Method", "Seed", "PSNR, test cameras as given (final)",
                         "PSNR, test cameras aligned (final)", "SSIM, test cameras aligned (final)",
-                        "PSNR inside masks (eval, as given)", "PSNR outside masks (eval, as given)"])  # fmt: skip
+                        "PSNR inside masks (eval, as given)", "PSNR outside masks (eval, as given)",
+                        "PSNR inside masks (eval, aligned)", "PSNR outside masks (eval, aligned)"])  # fmt: skip
     protocols: set[str] = set()
     for run in collection.finished:
-        aligned, masked = run.second_scores()
+        aligned, masked, masked_aligned = run.second_scores()
         if aligned is None and masked is None:
             continue
         if aligned is not None:
             protocols.add(str(aligned.get("cameras", "")))
-        inside, outside = (masked["inside"], masked["outside"]) if masked is not None else ({}, {})
+        regions = [_score((record or {}).get(region, {}).get("psnr"))
+                   for record in (masked, masked_aligned) for region in ("inside", "outside")]  # fmt: skip
         table.add(f"{run.entry.dataset} / {run.entry.scene}", "", [
             run.method.label, str(run.entry.seed), _score(run.results["final"]["psnr"]),
-            _score(aligned and aligned["psnr"]), "-" if aligned is None else printed(aligned["ssim"], 4),
-            _score(inside.get("psnr")), _score(outside.get("psnr")),
+            _score(aligned and aligned["psnr"]), "-" if aligned is None else printed(aligned["ssim"], 4), *regions,
         ])  # fmt: skip
     if not table.rows:
         return
@@ -176,8 +177,8 @@ def _second_scores_section(collection: Collection, md: list[str]) -> None:
            "Scored apart from the tables above, never in their columns. *Aligned*: "
            + ("; ".join(sorted(p for p in protocols if p)) or "-")
            + ". *Masks*: `liquidgs eval --run RUN --mask MASKS` of the run (its eval.json), PSNR inside and "
-           "outside the per-view masks of the moving subject, test cameras as given; a dash where the run has "
-           "none.", "",
+           "outside the per-view masks of the moving subject, with the test cameras as given and (runs that refine) "
+           "aligned; a dash where the run has none.", "",
            table.to_markdown()]  # fmt: skip
 
 
@@ -237,13 +238,17 @@ def _size_section(per_dataset: list[DatasetScores], references: bool, md: list[s
     if references:
         rows += [SizeRow(f"Paper: {name}", latex_escape(f"Paper: {name}"), value, "feed-forward", ranked=False)
                  for name, value in paper_targets()["cost_table_params_millions"].items()]  # fmt: skip
-    shared = ("Deformation-field parameters (field_parameters of each run's results.json), in millions; fields "
-              "of one module with one size share a row (the CfC and SDE-LNN: the noise adds no parameters and is "
-              "off at inference), a field whose size differs between datasets has a row per size")
+    shared = (
+        "Deformation-field parameters (field_parameters of each run's results.json), in millions; fields "
+        "of one module with one size share a row (the CfC and SDE-LNN: the noise adds no parameters and is "
+        "off at inference), a field whose size differs between datasets has a row per size"
+    )
     caption = f"**Deformation-field sizes (the paper's Table III)** - {shared}. Smallest in **bold**" + (
-        "; rows starting 'Paper:' are the printed numbers, not ranked." if references else ".")
+        "; rows starting 'Paper:' are the printed numbers, not ranked." if references else "."
+    )
     latex_caption = f"{shared}. \\colorbox{{red!60}}{{best}} (smallest)" + (
-        "; rows starting `Paper:' are the printed numbers, not ranked." if references else ".")
+        "; rows starting `Paper:' are the printed numbers, not ranked." if references else "."
+    )
     markdown, latex = size_table(rows, caption, latex_caption.replace("_", "\\_"), "tab:cost")
     md += [markdown]
     tex.append(latex)
