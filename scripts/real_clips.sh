@@ -9,8 +9,12 @@
 #    then fail alone);
 # 3. `liquidgs experiment run docs/experiments/real-clips.yml`: static, MLP, CfC and HexPlane with the
 #    quick look's settings on every clip, scored with the test cameras as given and aligned;
-# 4. its report. Steps already done (a folder that exists) are skipped, so a stopped rebuild resumes.
-# LIQUIDGS (default: liquidgs) is the command to run, e.g. "python -m liquidgs.cli".
+# 4. masks of the moving subject on each test view, from the boxes drawn by eye in
+#    docs/experiments/real-clips-boxes.json, and `liquidgs eval --mask` of every finished run of a clip
+#    that has them (scores inside and outside, test cameras as given and aligned);
+# 5. its report. Steps already done (a folder that exists) are skipped, so a stopped rebuild resumes.
+# LIQUIDGS (default: liquidgs) is the command to run, e.g. "python -m liquidgs.cli"; PYTHON (default:
+# python3) one with liquidgs' dependencies, for the masks.
 set -euo pipefail
 
 if [ $# -ne 1 ]; then
@@ -18,8 +22,10 @@ if [ $# -ne 1 ]; then
     exit 2
 fi
 out=$1
-spec="$(cd "$(dirname "$0")/.." && pwd)/docs/experiments/real-clips.yml"
+root="$(cd "$(dirname "$0")/.." && pwd)"
+spec="$root/docs/experiments/real-clips.yml"
 read -r -a liquidgs <<< "${LIQUIDGS:-liquidgs}"
+read -r -a python <<< "${PYTHON:-python3}"
 mkdir -p "$out"
 
 [ -d "$out/clips" ] || "${liquidgs[@]}" data download real-clips "$out/clips"
@@ -37,4 +43,15 @@ for video in "$out"/clips/*.mp4; do
 done
 
 "${liquidgs[@]}" experiment run "$spec" --data-root "$out/scenes" --out "$out/experiment"
+
+"${python[@]}" "$root/docs/experiments/real_clips_masks.py" "$out/masks"
+for masks in "$out"/masks/*/; do
+    clip=$(basename "$masks")
+    for run in "$out"/experiment/*/"$clip"/*/*/; do
+        [ -f "$run/results.json" ] || continue
+        log="$out/logs/eval-$clip-$(basename "$(dirname "$run")")-$(basename "$run").log"
+        "${liquidgs[@]}" eval --run "${run%/}" --mask "${masks%/}" > "$log" 2>&1 \
+            || echo "$clip: eval --mask of ${run%/} failed: $(tail -n 1 "$log")" >&2
+    done
+done
 "${liquidgs[@]}" experiment report "$out/experiment"

@@ -14,7 +14,9 @@ import threading
 import zipfile
 from pathlib import Path
 
+import numpy as np
 import pytest
+from PIL import Image
 
 from liquidgs.cli import main as cli
 from liquidgs.data import generate_synthetic
@@ -271,6 +273,12 @@ if args[:2] == ["data", "video"]:  # COLMAP's part, played: one clip refused, th
         sys.exit(2)
     pathlib.Path(args[args.index("--out") + 1]).mkdir()
     print("done: 40/40 frames registered, mean reprojection error 0.30 px, 7755 points")
+if args[:2] == ["experiment", "run"]:  # one finished run of the cat, one unfinished
+    runs = pathlib.Path(args[args.index("--out") + 1]) / "real-clips" / "cat"
+    for field, done in (("mlp", True), ("cfc", False)):
+        (runs / field / "0123abcd").mkdir(parents=True, exist_ok=True)
+        if done:
+            (runs / field / "0123abcd" / "results.json").write_text("{}")
 """
 
 
@@ -283,7 +291,7 @@ def test_the_rebuild_script_downloads_registers_each_clip_and_runs_the_spec(serv
     stub = tmp_path / "liquidgs_stub.py"
     stub.write_text(STUB_LIQUIDGS)
     script = Path(__file__).parents[1] / "scripts" / "real_clips.sh"
-    env = {**os.environ, "LIQUIDGS": f"{sys.executable} {stub}"}
+    env = {**os.environ, "LIQUIDGS": f"{sys.executable} {stub}", "PYTHON": sys.executable}
     run = subprocess.run(["bash", str(script), str(tmp_path / "bench")], env=env, capture_output=True, text=True)
     assert run.returncode == 0, run.stderr
     calls = [json.loads(line) for line in (tmp_path / "liquidgs_stub.py.calls").read_text().splitlines()]
@@ -297,15 +305,26 @@ def test_the_rebuild_script_downloads_registers_each_clip_and_runs_the_spec(serv
                             "--threads", "1"]  # fmt: skip
     spec = str(script.parents[1] / "docs" / "experiments" / "real-clips.yml")
     experiment = str(bench / "experiment")
+    masks = bench / "masks" / "cat"
     assert calls[4:] == [["experiment", "run", spec, "--data-root", str(bench / "scenes"), "--out", experiment],
+                         ["eval", "--run", f"{experiment}/real-clips/cat/mlp/0123abcd", "--mask", str(masks)],
                          ["experiment", "report", experiment]]  # fmt: skip
+    # The masks: every test view of every moving clip, its box 255 inside at the view's size.
+    boxes = json.loads((script.parents[1] / "docs" / "experiments" / "real-clips-boxes.json").read_text())["clips"]
+    assert sorted(p.name for p in (bench / "masks").iterdir()) == sorted(boxes) and "apple" not in boxes
+    for clip, entry in boxes.items():
+        for view, (x0, y0, x1, y1) in entry["boxes"].items():
+            mask = np.asarray(Image.open(bench / "masks" / clip / f"{view}.png"))
+            assert mask.shape == (entry["size"][1], entry["size"][0]) and mask.sum() == 255 * (x1 - x0) * (y1 - y0)
+            assert mask[y0, x0] == mask[y1 - 1, x1 - 1] == 255
     assert "apple: done: 40/40 frames registered" in run.stdout
     assert "refused: data video refused it: liquidgs data video: error: COLMAP could not start" in run.stderr
     assert sorted(p.name for p in (bench / "scenes").iterdir()) == ["apple", "cat"]
     again = subprocess.run(["bash", str(script), str(bench)], env=env, capture_output=True, text=True)
     assert again.returncode == 0, again.stderr
-    calls_again = [json.loads(line) for line in (tmp_path / "liquidgs_stub.py.calls").read_text().splitlines()][6:]
-    assert [call[:2] for call in calls_again] == [["data", "video"], ["experiment", "run"], ["experiment", "report"]]
+    calls_again = [json.loads(line) for line in (tmp_path / "liquidgs_stub.py.calls").read_text().splitlines()][7:]
+    assert [call[:2] for call in calls_again] == [["data", "video"], ["experiment", "run"], ["eval", "--run"],
+                                                  ["experiment", "report"]]  # fmt: skip
     assert calls_again[0][2] == str(bench / "clips" / "refused.mp4")  # the refused clip is tried again
 
 
