@@ -168,7 +168,7 @@ def test_a_refining_run_resumes_bit_exactly_and_writes_its_corrections(capture, 
     assert written["max_rotation_deg"] == max(f["rotation_deg"] for f in written["frames"]) > 0
 
 
-def test_a_run_on_noisy_poses_reports_how_far_refinement_brought_them_back(tmp_path):
+def test_a_run_on_noisy_poses_reports_how_far_refinement_brought_them_back(tmp_path, capsys):
     """What the stress tests' pose noise asks of refinement, inside training: on the still scene
     (nothing moves, so only the cameras can explain a view's misfit) the refined training cameras
     reproject the scene's points closer to where the true cameras do than those given did. Measured
@@ -185,6 +185,10 @@ def test_a_run_on_noisy_poses_reports_how_far_refinement_brought_them_back(tmp_p
     before, after = recovery["before"], recovery["after"]
     assert before["aligned_rotation_deg"] > 0.5 and before["reprojection_px"] > 0.5
     assert after["reprojection_px"] < 0.6 * before["reprojection_px"], recovery
+    printed = capsys.readouterr().err
+    assert "test cameras aligned to the scene: PSNR" in printed
+    assert (f"pose recovery: reprojection {before['reprojection_px']:.2f} -> {after['reprojection_px']:.2f} px, "
+            f"rotation {before['aligned_rotation_deg']:.3f} -> {after['aligned_rotation_deg']:.3f} deg") in printed
 
 
 def test_a_run_made_before_refinement_resumes_without_it(capture, tmp_path, monkeypatch, capsys):

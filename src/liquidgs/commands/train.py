@@ -30,6 +30,7 @@ from liquidgs.settings import parse_flag_settings, print_help, wants_help, with_
 from liquidgs.train.config import TrainConfig, differing_settings, load_yaml, preset_config, run_folder
 from liquidgs.train.run import training_threads
 from liquidgs.train.run_folder import (
+    CAMERAS_REFINED,
     CONFIG,
     PER_VIEW,
     RESULTS,
@@ -178,10 +179,30 @@ def train(cfg: TrainConfig, run_dir: Path, console: Console | None = None, datas
         f"{describe_lpips(final)}  ({results.num_gaussians} Gaussians, "
         f"{results.train_seconds:.0f} s) -> {run_dir}"
     )
+    for line in refinement_lines(results, trainer):
+        console.print(line, highlight=False, soft_wrap=True)
     note = below_background_note(final)  # a collapse would have failed the run: this one never learned
     if note:
         console.print(f"[yellow]note:[/] {note}")
     return results
+
+
+def refinement_lines(results: RunResults, trainer: Trainer) -> list[str]:
+    """A run that refined its cameras: its score from aligned test cameras and, where its poses were
+    made noisy on purpose, how far refinement brought them back (both also in the run folder)."""
+    lines = []
+    aligned = results.final_aligned
+    if aligned:
+        lines.append(f"  test cameras aligned to the scene: PSNR {aligned['psnr']:.2f}  SSIM {aligned['ssim']:.4f}")
+    recovery = trainer.cameras.report(trainer.state.iteration).get("pose_recovery") if trainer.cameras else None
+    if recovery:
+        before, after = recovery["before"], recovery["after"]
+        pixels = (f"reprojection {before['reprojection_px']:.2f} -> {after['reprojection_px']:.2f} px, "
+                  if "reprojection_px" in before else "")  # fmt: skip
+        lines.append(f"  pose recovery: {pixels}rotation {before['aligned_rotation_deg']:.3f} -> "
+                     f"{after['aligned_rotation_deg']:.3f} deg, centre {before['aligned_translation']:.4f} -> "
+                     f"{after['aligned_translation']:.4f} (after the gauge similarity; {CAMERAS_REFINED})")  # fmt: skip
+    return lines
 
 
 def main(argv: list[str]) -> int:
