@@ -82,10 +82,10 @@ def pose_errors(estimated: torch.Tensor, truth: torch.Tensor) -> dict:
 
 def reprojection_error(
     estimated: torch.Tensor, truth: torch.Tensor, intrinsics: torch.Tensor, points: torch.Tensor
-) -> float:
+) -> float | None:
     """Mean distance (pixels) between the scene points [P, 3] (true world) projected by each true camera
     and by the estimated one after the gauge similarity; world->camera matrices [N, 4, 4], intrinsics
-    [N, 3, 3]. Points behind either camera are left out."""
+    [N, 3, 3]. Points behind either camera are left out; None when no point is in front of both."""
     estimated, truth = estimated.double().cpu(), truth.double().cpu()
     intrinsics, points = intrinsics.double().cpu(), points.double().cpu()
     scale, rotation, shift = gauge_similarity(estimated, truth)
@@ -100,7 +100,8 @@ def reprojection_error(
         pixels_true, pixels_est = (x[seen] @ intrinsics[i].T for x in (in_true, in_est))
         offset = pixels_true[:, :2] / pixels_true[:, 2:] - pixels_est[:, :2] / pixels_est[:, 2:]
         distances.append(offset.norm(dim=-1))
-    return float(torch.cat(distances).mean())
+    distances = torch.cat(distances)
+    return float(distances.mean()) if len(distances) else None
 
 
 def pose_recovery(
@@ -116,8 +117,9 @@ def pose_recovery(
 
     def errors(estimated: torch.Tensor) -> dict:
         found = {name: round(value, 6) for name, value in pose_errors(estimated, truth).items()}
-        if points is not None and len(points):
-            found["reprojection_px"] = round(reprojection_error(estimated, truth, intrinsics, points), 4)
+        pixels = reprojection_error(estimated, truth, intrinsics, points) if points is not None else None
+        if pixels is not None:
+            found["reprojection_px"] = round(pixels, 4)
         return found
 
     return {"before": errors(given), "after": errors(refined)}
