@@ -103,7 +103,7 @@ def test_ply_layout_is_the_standard_one(tmp_path):
     # f_rest is channel-major: f_rest_0..14 are the red coefficients.
     red = np.stack([ply["vertex"][f"f_rest_{i}"] for i in range(15)], axis=1)
     assert np.array_equal(red, params["shN"][:, :, 0].detach().numpy())
-    assert math.isclose(float(ply["vertex"]["opacity"][0]), float(params["opacities"][0]), rel_tol=0)
+    assert math.isclose(float(ply["vertex"]["opacity"][0]), float(params["opacities"][0].detach()), rel_tol=0)
 
 
 def test_ply_errors_name_file_and_field(tmp_path):
