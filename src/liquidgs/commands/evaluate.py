@@ -72,15 +72,10 @@ def evaluate_run(args: EvalArgs) -> dict:
     background = torch.tensor(dataset.background, dtype=torch.float32)
     views = dataset.splits[args.split]
     masks = read_masks(args.mask, views) if args.mask is not None else None  # checked before any work
-    renders = []
-
-    def render(frame):
-        rgb = run.render(frame.camera, frame.time, background).rgb
-        renders.append(rgb.clamp(0, 1))
-        return rgb
-
+    renders, aligned_renders = [], []
+    render = _keeping(lambda frame: run.render(frame.camera, frame.time, background).rgb, renders)
     summary, per_view = evaluate_views(render, views, lpips=lpips, lpips_error=lpips_error, quantize=quantize)
-    aligned, aligned_renders = None, []
+    aligned = None
     if refines(cfg.cameras, dataset.format):
         render_aligned = aligned_render(
             run.at_time,
@@ -88,14 +83,8 @@ def evaluate_run(args: EvalArgs) -> dict:
                                                    background=background, backend=cfg.backend).rgb,
             cfg.cameras, dataset.camera_extent, cfg.ssim_weight,
         )  # fmt: skip
-
-        def render_and_keep(frame):
-            rgb = render_aligned(frame)
-            aligned_renders.append(rgb.clamp(0, 1))
-            return rgb
-
         aligned_summary, _ = evaluate_views(
-            render_and_keep, views, lpips=lpips, lpips_error=lpips_error, quantize=quantize
+            _keeping(render_aligned, aligned_renders), views, lpips=lpips, lpips_error=lpips_error, quantize=quantize
         )
         aligned = {**aligned_summary, "cameras": alignment_protocol(cfg.cameras)}
     record = {
@@ -142,6 +131,17 @@ def main(argv: list[str]) -> int:
     for line in _more_lines(record):
         Console().print(line, highlight=False, soft_wrap=True)
     return 0
+
+
+def _keeping(render, kept: list):
+    """`render`, also keeping each image it returns (clamped to [0, 1]) in `kept`, for the masked scores."""
+
+    def render_and_keep(frame):
+        rgb = render(frame)
+        kept.append(rgb.clamp(0, 1))
+        return rgb
+
+    return render_and_keep
 
 
 def _more_lines(record: dict) -> list[str]:

@@ -15,6 +15,7 @@ settings. --resume continues the run in --out as its config.yml says (only --ite
 from __future__ import annotations
 
 import dataclasses
+import json
 import shlex
 from pathlib import Path
 
@@ -179,7 +180,7 @@ def train(cfg: TrainConfig, run_dir: Path, console: Console | None = None, datas
         f"{describe_lpips(final)}  ({results.num_gaussians} Gaussians, "
         f"{results.train_seconds:.0f} s) -> {run_dir}"
     )
-    for line in refinement_lines(results, trainer):
+    for line in refinement_lines(results, run_dir):
         console.print(line, highlight=False, soft_wrap=True)
     note = below_background_note(final)  # a collapse would have failed the run: this one never learned
     if note:
@@ -187,14 +188,15 @@ def train(cfg: TrainConfig, run_dir: Path, console: Console | None = None, datas
     return results
 
 
-def refinement_lines(results: RunResults, trainer: Trainer) -> list[str]:
+def refinement_lines(results: RunResults, run_dir: Path) -> list[str]:
     """A run that refined its cameras: its score from aligned test cameras and, where its poses were
-    made noisy on purpose, how far refinement brought them back (both also in the run folder)."""
+    made noisy on purpose, how far refinement brought them back (as the run folder records them)."""
     lines = []
     aligned = results.final_aligned
     if aligned:
         lines.append(f"  test cameras aligned to the scene: PSNR {aligned['psnr']:.2f}  SSIM {aligned['ssim']:.4f}")
-    recovery = trainer.cameras.report(trainer.state.iteration).get("pose_recovery") if trainer.cameras else None
+    refined = run_dir / CAMERAS_REFINED
+    recovery = json.loads(refined.read_text()).get("pose_recovery") if aligned and refined.is_file() else None
     if recovery:
         before, after = recovery["before"], recovery["after"]
         pixels = (f"reprojection {before['reprojection_px']:.2f} -> {after['reprojection_px']:.2f} px, "

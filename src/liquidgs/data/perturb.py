@@ -48,6 +48,11 @@ class PerturbConfig:
     def active(self) -> bool:
         return self != PerturbConfig()
 
+    @property
+    def moves_cameras(self) -> bool:
+        """Whether the training cameras are made noisy (their true poses are then known to the run)."""
+        return self.pose_rot_deg > 0 or self.pose_trans > 0
+
     def settings(self) -> dict:
         """The perturbations switched on, by name."""
         default = PerturbConfig()

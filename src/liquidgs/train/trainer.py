@@ -157,7 +157,7 @@ class Trainer:
     # ----------------------------------------------------------------- set-up
     def _true_cameras(self, clean: SceneDataset) -> list | None:
         """The training frames' cameras before the pose perturbation made them noisy (None without one)."""
-        if not (self.cfg.perturb.pose_rot_deg or self.cfg.perturb.pose_trans):
+        if not self.cfg.perturb.moves_cameras:
             return None
         by_name = {frame.name: frame.camera for frame in clean.train}
         return [by_name[frame.name] for frame in self.dataset.train]
