@@ -8,11 +8,13 @@
 #    640, one COLMAP thread (a clip COLMAP refuses is reported and left out: the spec's runs of it
 #    then fail alone);
 # 3. `liquidgs experiment run docs/experiments/real-clips.yml`: static, MLP, CfC and HexPlane with the
-#    quick look's settings on every clip, scored with the test cameras as given and aligned;
+#    quick look's settings on every clip, scored with the test cameras as given and aligned (into
+#    DIR/experiment); then real-clips-unregularised.yml, the fields without the motion regularisers
+#    (into DIR/experiment-unregularised);
 # 4. masks of the moving subject on each test view, from the boxes drawn by eye in
 #    docs/experiments/real-clips-boxes.json, and `liquidgs eval --mask` of every finished run of a clip
 #    that has them (scores inside and outside, test cameras as given and aligned);
-# 5. its report. Steps already done (a folder that exists) are skipped, so a stopped rebuild resumes.
+# 5. the two reports. Steps already done (a folder that exists) are skipped, so a stopped rebuild resumes.
 # LIQUIDGS (default: liquidgs) is the command to run, e.g. "python -m liquidgs.cli"; PYTHON (default:
 # python3) one with liquidgs' dependencies, for the masks.
 set -euo pipefail
@@ -23,7 +25,7 @@ if [ $# -ne 1 ]; then
 fi
 out=$1
 root="$(cd "$(dirname "$0")/.." && pwd)"
-spec="$root/docs/experiments/real-clips.yml"
+specs="$root/docs/experiments"
 read -r -a liquidgs <<< "${LIQUIDGS:-liquidgs}"
 read -r -a python <<< "${PYTHON:-python3}"
 mkdir -p "$out"
@@ -42,12 +44,14 @@ for video in "$out"/clips/*.mp4; do
     fi
 done
 
-"${liquidgs[@]}" experiment run "$spec" --data-root "$out/scenes" --out "$out/experiment"
+"${liquidgs[@]}" experiment run "$specs/real-clips.yml" --data-root "$out/scenes" --out "$out/experiment"
+"${liquidgs[@]}" experiment run "$specs/real-clips-unregularised.yml" --data-root "$out/scenes" \
+    --out "$out/experiment-unregularised"
 
 "${python[@]}" "$root/docs/experiments/real_clips_masks.py" "$out/masks"
 for masks in "$out"/masks/*/; do
     clip=$(basename "$masks")
-    for run in "$out"/experiment/*/"$clip"/*/*/; do
+    for run in "$out"/experiment/*/"$clip"/*/*/ "$out"/experiment-unregularised/*/"$clip"/*/*/; do
         [ -f "$run/results.json" ] || continue
         log="$out/logs/eval-$clip-$(basename "$(dirname "$run")")-$(basename "$run").log"
         "${liquidgs[@]}" eval --run "${run%/}" --mask "${masks%/}" > "$log" 2>&1 \
@@ -55,3 +59,4 @@ for masks in "$out"/masks/*/; do
     done
 done
 "${liquidgs[@]}" experiment report "$out/experiment"
+"${liquidgs[@]}" experiment report "$out/experiment-unregularised"

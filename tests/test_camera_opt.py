@@ -21,6 +21,7 @@ from liquidgs.data.perturb import rotation_about
 from liquidgs.errors import LiquidGSError
 from liquidgs.eval.poses import pose_errors, reprojection_error
 from liquidgs.train.camera_opt import (
+    Alignment,
     CameraRefineConfig,
     CameraRefinement,
     align_camera,
@@ -28,6 +29,7 @@ from liquidgs.train.camera_opt import (
     move_gaussians,
 )
 from liquidgs.train.config import config_hash, differing_settings, identity, load_yaml
+from liquidgs.train.exposure import expose
 from liquidgs.train.model import Deformed, render_frame
 from shared_data import use_optional_lpips
 from tiny_runs import interrupt_at, one_line_error, run_cli, run_train, tiny_flags
@@ -104,10 +106,33 @@ def test_alignment_recovers_a_perturbed_camera_on_a_frozen_scene():
     truth = _render(scene, _camera(TRUE_VIEW))
     noisy = _camera(_moved(TRUE_VIEW, 2.0, [0.04, -0.03, 0.02]))
     before = _pose_error(noisy.viewmat, TRUE_VIEW)
-    omega, tau = align_camera(_render, scene, noisy, truth, steps=100, lr=5e-3, extent=1.0)
+    omega, tau, gain, offset = align_camera(_render, scene, noisy, truth, steps=100, lr=5e-3, extent=1.0)
     after = _pose_error(corrected_viewmat(noisy.viewmat, omega, tau), TRUE_VIEW)
     assert before[0] > 1.9 and before[1] > 0.05
     assert after[0] < 0.25 * before[0] and after[1] < 0.25 * before[1], (before, after)
+    assert not gain.any() and not offset.any()  # a run without exposure compensation: the render's colours as they are
+
+
+def test_alignment_with_exposure_recovers_the_pose_and_a_changed_exposure_together():
+    """A test view shot darker and bluer than the frozen scene (a phone's automatic exposure), from a
+    moved camera: the aligned evaluation of a run that compensates exposure finds both."""
+    scene = _scene(n=1500, spread=4.0, scale=0.08)
+    true_gain, true_offset = torch.tensor([-0.15, -0.10, 0.05]), torch.tensor([0.02, 0.0, 0.03])
+    truth = expose(_render(scene, _camera(TRUE_VIEW)), true_gain, true_offset)
+    noisy = _camera(_moved(TRUE_VIEW, 2.0, [0.04, -0.03, 0.02]))
+    before = _pose_error(noisy.viewmat, TRUE_VIEW)
+    omega, tau, gain, offset = align_camera(_render, scene, noisy, truth, steps=150, lr=5e-3, extent=1.0,
+                                            alignment=Alignment(pose=True, exposure=True))  # fmt: skip
+    after = _pose_error(corrected_viewmat(noisy.viewmat, omega, tau), TRUE_VIEW)
+    assert after[0] < 0.3 * before[0] and after[1] < 0.3 * before[1], (before, after)
+    pose_only = align_camera(_render, scene, noisy, truth, steps=150, lr=5e-3, extent=1.0)
+    aligned = [expose(_render(scene, _camera(corrected_viewmat(noisy.viewmat, o, t))), g, b)
+               for o, t, g, b in ((omega, tau, gain, offset), pose_only)]  # fmt: skip
+    errors = [float((image - truth).abs().mean()) for image in aligned]
+    assert errors[0] < 0.5 * errors[1], errors  # the exposure, not fitted, stays in the error
+    # (gain and offset trade off on a narrow range of colours: what must match is the colour shown)
+    assert (aligned[0].mean((0, 1)) - truth.mean((0, 1))).abs().max() < 0.01
+    assert (aligned[1].mean((0, 1)) - truth.mean((0, 1))).abs().max() > 0.02
 
 
 def test_a_correction_past_its_bound_is_one_line_naming_the_frame():
@@ -192,15 +217,16 @@ def test_a_run_on_noisy_poses_reports_how_far_refinement_brought_them_back(tmp_p
 
 
 def test_a_run_made_before_refinement_resumes_without_it(capture, tmp_path, monkeypatch, capsys):
-    """Its config.yml has no `cameras` and its checkpoint none: it continues as it was trained."""
+    """Its config.yml has no `cameras` (nor `exposure`, which came later) and its checkpoint none: it
+    continues as it was trained."""
     out = tmp_path / "old"
     flags = ["--data", str(capture / "nerfies"), "--field", "static", *REFINE_RUN, "--out", str(out)]
-    interrupt_at(15, [*flags, "--cameras.refine", "off"], monkeypatch)
+    interrupt_at(15, [*flags, "--cameras.refine", "off", "--exposure.apply", "off"], monkeypatch)
     stored = yaml.safe_load((out / "config.yml").read_text())
-    del stored["cameras"]
+    del stored["cameras"], stored["exposure"]
     (out / "config.yml").write_text(yaml.safe_dump(stored, sort_keys=False))
     payload = torch.load(out / "checkpoint.pt", weights_only=True)
-    del payload["cameras"]
+    del payload["cameras"], payload["exposure"], payload["sizes_held"]
     torch.save(payload, out / "checkpoint.pt")
     assert load_yaml(out / "config.yml").cameras.refine == "off"
     code, _, _ = run_cli(["train", "--out", str(out), "--resume"])

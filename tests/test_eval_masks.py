@@ -66,7 +66,9 @@ def test_eval_scores_given_aligned_and_masked_apart(refined_run, tmp_path, capsy
     record = json.loads((run / "eval.json").read_text())
     results = json.loads((run / "results.json").read_text())
     assert record["cameras"] == "as given" and record["psnr"] == pytest.approx(results["final"]["psnr"], abs=1e-6)
-    assert record["aligned"]["cameras"].startswith("each test camera aligned to the frozen scene by pose-only")
+    protocol = record["aligned"]["cameras"]  # a capture: its pose and its exposure
+    assert protocol.startswith("each test view aligned to the frozen scene") and "rotation and translation" in protocol
+    assert "gain and offset" in protocol
     assert record["aligned"]["psnr"] == pytest.approx(results["final_aligned"]["psnr"], abs=1e-6)
     masked = record["masked"]
     assert masked["cameras"] == "as given"

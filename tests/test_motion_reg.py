@@ -44,5 +44,7 @@ def test_on_for_captures_off_for_dnerf_the_static_model_and_the_paper_specs():
     assert not regularises(cfg, "nerfies", "static") and not regularises(MotionRegConfig(apply="off"), "nerfies", "mlp")
     for name in ("paper-dnerf", "paper-dnerf-3seeds", "paper-nerfds", "paper-nerfds-3seeds", "noise-study", "seeds"):
         for grid in BUILTIN_SPECS[name].grids:
-            assert grid.overrides["motion.apply"] == "off" and grid.overrides["cameras.refine"] == "off", name
+            overrides = grid.overrides
+            switches = (overrides["motion.apply"], overrides["cameras.refine"], overrides["exposure.apply"])
+            assert switches == ("off", "off", "off"), name
     assert math.isfinite(cfg.rigidity)

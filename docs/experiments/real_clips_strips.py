@@ -40,7 +40,8 @@ def renderers(run, dataset, background) -> dict:
     def rasterise(gaussians, camera):
         return render_frame(gaussians, camera, sh_degree=run.sh_degree, background=background, backend=cfg.backend).rgb
 
-    aligned = aligned_render(run.at_time, rasterise, cfg.cameras, dataset.camera_extent, cfg.ssim_weight)
+    aligned = aligned_render(run.at_time, rasterise, cfg.cameras, dataset.camera_extent, cfg.ssim_weight,
+                             cfg.alignment(dataset.format))
     return {"given": lambda frame: run.render(frame.camera, frame.time, background).rgb, "aligned": aligned}
 
 

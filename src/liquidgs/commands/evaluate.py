@@ -4,8 +4,9 @@ Writes DIR/eval.json (summary, labelled with the checkpoint's iteration and whet
 had finished) and DIR/eval_per_view.json; results.json, the training record, is left as it
 was. A run in progress may be evaluated: its record says "unfinished run".
 
-The scores are with the test cameras as given. A run that refined its cameras is scored a second
-time with each test camera aligned to the frozen scene, under "aligned" (its "cameras" says how).
+The scores are with the test cameras as given. A run that refined its cameras or compensated
+exposure is scored a second time with each test view aligned to the frozen scene (its pose, its
+exposure), under "aligned" (its "cameras" says how).
 --mask DIR adds PSNR / SSIM inside and outside per-view masks of the moving subject, under "masked"
 (cameras as given) and, for a run that refined its cameras, "masked_aligned" (test cameras aligned).
 """
@@ -25,7 +26,7 @@ from liquidgs.eval import LPIPS, LPIPSUnavailable, describe_lpips, evaluate_view
 from liquidgs.eval.masks import masked_scores, read_masks
 from liquidgs.eval.metrics import quantize_8bit
 from liquidgs.settings import parse_flags
-from liquidgs.train.camera_opt import aligned_render, alignment_protocol, refines
+from liquidgs.train.camera_opt import aligned_render
 from liquidgs.train.model import render_frame
 from liquidgs.train.run import load_run, load_run_dataset
 from liquidgs.train.run_folder import EVAL, EVAL_PER_VIEW, check_scene_print, write_per_view
@@ -76,17 +77,18 @@ def evaluate_run(args: EvalArgs) -> dict:
     render = _keeping(lambda frame: run.render(frame.camera, frame.time, background).rgb, renders)
     summary, per_view = evaluate_views(render, views, lpips=lpips, lpips_error=lpips_error, quantize=quantize)
     aligned = None
-    if refines(cfg.cameras, dataset.format):
+    alignment = cfg.alignment(dataset.format)
+    if alignment is not None:
         render_aligned = aligned_render(
             run.at_time,
             lambda gaussians, camera: render_frame(gaussians, camera, sh_degree=run.sh_degree,
                                                    background=background, backend=cfg.backend).rgb,
-            cfg.cameras, dataset.camera_extent, cfg.ssim_weight,
+            cfg.cameras, dataset.camera_extent, cfg.ssim_weight, alignment,
         )  # fmt: skip
         aligned_summary, _ = evaluate_views(
             _keeping(render_aligned, aligned_renders), views, lpips=lpips, lpips_error=lpips_error, quantize=quantize
         )
-        aligned = {**aligned_summary, "cameras": alignment_protocol(cfg.cameras)}
+        aligned = {**aligned_summary, "cameras": alignment.protocol(cfg.cameras)}
     record = {
         "kind": "re-evaluation of the final checkpoint"
         if run.finished

@@ -21,6 +21,17 @@ from liquidgs.data.validate import decode_image
 from liquidgs.errors import DataError
 
 READERS = {"dnerf": read_dnerf, "nerfies": read_nerfies}
+CAPTURE_FORMATS = ("nerfies",)
+"""Formats whose cameras were estimated from real footage (Nerfies, HyperNeRF, NeRF-DS, and what
+`data video` / `data images` write). D-NeRF's frames are rendered, its cameras exact."""
+
+
+def for_captures(choice: str, data_format: str | None) -> bool:
+    """A training setting's auto / on / off: auto is on for captures, off otherwise (None: the
+    format is unknown)."""
+    if choice != "auto":
+        return choice == "on"
+    return data_format in CAPTURE_FORMATS
 
 
 def detect_format(path: Path) -> str:

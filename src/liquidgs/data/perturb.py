@@ -20,7 +20,7 @@ from liquidgs.data.scene import Frame, SceneDataset
 from liquidgs.errors import ConfigError
 
 # Random stream of each perturbation (the second word of its numpy seed).
-_STREAMS = {"time_jitter": 1, "pose_rot_deg": 2, "pose_trans": 3, "image_noise": 4}
+_STREAMS = {"time_jitter": 1, "pose_rot_deg": 2, "pose_trans": 3, "image_noise": 4, "exposure": 5}
 
 
 @dataclass
@@ -43,6 +43,9 @@ class PerturbConfig:
     image_noise: float = 0.0
     """Standard deviation of additive Gaussian noise on training pixel values in [0, 1], clipped to
     [0, 1] and rounded to 8 bits like a stored photo; fixed per frame."""
+    exposure: float = 0.0
+    """Exposure flicker: each training frame's pixel values multiplied by a per-channel gain 1 + N(0, E^2)
+    (a camera's automatic exposure and white balance), clipped to [0, 1] and rounded to 8 bits; fixed per frame."""
 
     @property
     def active(self) -> bool:
@@ -59,7 +62,7 @@ class PerturbConfig:
         return {k: v for k, v in dataclasses.asdict(self).items() if v != getattr(default, k)}
 
     def __post_init__(self) -> None:  # checked when built, as every config
-        for name in ("time_jitter", "pose_rot_deg", "pose_trans", "image_noise"):
+        for name in ("time_jitter", "pose_rot_deg", "pose_trans", "image_noise", "exposure"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
                 raise ConfigError(f"perturb.{name.replace('_', '-')} must be a finite number >= 0, got {value!r}")
@@ -74,15 +77,19 @@ class PerturbConfig:
 
 @dataclass(eq=False)
 class NoisyFrame(Frame):
-    """A training frame whose pixels carry fixed additive noise (the same on every read)."""
+    """A training frame whose pixels carry a fixed per-channel gain and additive noise (the same on
+    every read)."""
 
     noise_std: float = 0.0
     noise_seed: tuple[int, ...] = ()
+    gain: tuple[float, float, float] = (1.0, 1.0, 1.0)
 
     def image_uint8(self) -> np.ndarray:
         clean = super().image_uint8().astype(np.float64) / 255.0
         noise = np.random.default_rng(self.noise_seed).normal(0.0, self.noise_std, clean.shape)
-        noisy = np.rint(np.clip(clean + noise, 0.0, 1.0) * 255.0).astype(np.uint8)
+        gain = np.ones(clean.shape[-1])
+        gain[:3] = self.gain  # an alpha channel keeps its values
+        noisy = np.rint(np.clip(clean * gain + noise, 0.0, 1.0) * 255.0).astype(np.uint8)
         noisy.flags.writeable = False
         return noisy
 
@@ -150,15 +157,19 @@ def perturb_dataset(dataset: SceneDataset, cfg: PerturbConfig, seed: int) -> Sce
         scale = cfg.pose_trans * dataset.camera_extent / math.sqrt(3.0)
         shifts = _rng(seed, "pose_trans").normal(0.0, scale, (n, 3))
     moved = cfg.pose_rot_deg > 0 or cfg.pose_trans > 0
+    gains = np.ones((n, 3))
+    if cfg.exposure > 0:
+        gains = np.clip(1.0 + _rng(seed, "exposure").normal(0.0, cfg.exposure, (n, 3)), 0.0, None)
     frames = []
     for i, frame in enumerate(train):
         values = {f.name: getattr(frame, f.name) for f in dataclasses.fields(Frame)}
         values["time"] = float(times[i])
         if moved:
             values["camera"] = _moved_camera(frame.camera, rotations[i], shifts[i])
-        if cfg.image_noise > 0:
+        if cfg.image_noise > 0 or cfg.exposure > 0:
             noise_seed = (seed, _STREAMS["image_noise"], i)
-            frames.append(NoisyFrame(**values, noise_std=cfg.image_noise, noise_seed=noise_seed))
+            frames.append(NoisyFrame(**values, noise_std=cfg.image_noise, noise_seed=noise_seed,
+                                     gain=tuple(float(g) for g in gains[i])))  # fmt: skip
         else:
             frames.append(Frame(**values))
     splits = {**dataset.splits, "train": frames, "test": test}

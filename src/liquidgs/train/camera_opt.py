@@ -1,5 +1,6 @@
-"""Camera refinement: a learned rigid correction per training camera, and pose-only alignment of a
-test camera to a frozen scene (the second way a refined model is scored).
+"""Camera refinement: a learned rigid correction per training camera, and the alignment of a test
+view to a frozen scene, its pose and (for a run that compensates exposure) its exposure: the second
+way a refined model is scored.
 
 A correction (omega, tau) acts in the camera's own axes: the corrected world->camera matrix is
 D @ V with D = [exp(omega) | tau], so omega rotates the camera about its centre (|omega| is the
@@ -31,23 +32,21 @@ import torch
 
 from liquidgs.atomic import write_json_atomic
 from liquidgs.cameras import Camera
-from liquidgs.data.loading import detect_format
+from liquidgs.data.loading import detect_format, for_captures
 from liquidgs.data.scene import DataConfig
 from liquidgs.errors import ConfigError, DataError, LiquidGSError
 from liquidgs.eval.metrics import ssim
 from liquidgs.eval.poses import pose_recovery
+from liquidgs.train.exposure import expose
 from liquidgs.train.model import Deformed
 from liquidgs.train.schedules import log_linear_lr
 
-CAPTURE_FORMATS = ("nerfies",)
-"""Formats whose cameras were estimated (Nerfies, HyperNeRF, NeRF-DS, and what `data video` /
-`data images` write): refined by default. D-NeRF's Blender cameras are exact."""
 REFINE_CHOICES = ("auto", "on", "off")
 
 
 @dataclass
 class CameraRefineConfig:
-    """Camera refinement (per training camera) and the pose-only alignment of test cameras."""
+    """Camera refinement (per training camera) and the alignment of test views (align_steps, align_lr)."""
 
     refine: Literal["auto", "on", "off"] = "auto"
     """Learn a rotation and translation correction for each training camera. auto: on for captures
@@ -92,9 +91,7 @@ class CameraRefineConfig:
 
 def refines(cfg: CameraRefineConfig, data_format: str | None) -> bool:
     """Whether a run on data of this format refines its cameras (None: the format is unknown)."""
-    if cfg.refine != "auto":
-        return cfg.refine == "on"
-    return data_format in CAPTURE_FORMATS
+    return for_captures(cfg.refine, data_format)
 
 
 def known_format(data: DataConfig) -> str | None:
@@ -304,6 +301,34 @@ class CameraRefinement:
 
 
 # ---------------------------------------------------------------------- aligned evaluation
+@dataclass(frozen=True)
+class Alignment:
+    """What a test view is fitted by before it is scored: its pose, its exposure, or both."""
+
+    pose: bool = True
+    exposure: bool = False
+
+    def protocol(self, cfg: CameraRefineConfig) -> str:
+        fitted = " and ".join(
+            what for what, on in (("a rotation and translation correction", self.pose),
+                                  ("a per-channel gain and offset of the render (its exposure)", self.exposure)) if on
+        )  # fmt: skip
+        rates = []
+        if self.pose:
+            rates.append(
+                f"rotation lr {cfg.align_lr:g} rad, translation lr {cfg.align_lr:g} x the train cameras' extent"
+            )
+        if self.exposure:
+            rates.append(f"gain and offset lr {cfg.align_lr:g}")
+        return (
+            f"each test view aligned to the frozen scene: {cfg.align_steps} Adam steps on {fitted} "
+            f"({', '.join(rates)}, decaying log-linearly to 1/100), training loss"
+        )
+
+
+POSE_ONLY = Alignment()
+
+
 def align_camera(
     render,
     gaussians: Deformed,
@@ -314,48 +339,51 @@ def align_camera(
     lr: float,
     extent: float,
     ssim_weight: float = 0.2,
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """The correction (omega, tau) that aligns `camera` to frozen Gaussians: `steps` Adam steps on it
-    alone, minimising the training loss ((1 - w) L1 + w D-SSIM) of render(gaussians, camera) against
-    `truth`. Rotation at `lr` radians, translation at `lr` x extent, both decaying log-linearly to
-    lr / 100. The aligned view is render(move_gaussians(gaussians, V, omega, tau), camera)."""
+    alignment: Alignment = POSE_ONLY,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The correction (omega, tau, gain, offset) that aligns `camera` to frozen Gaussians: `steps` Adam
+    steps on what `alignment` fits, minimising the training loss ((1 - w) L1 + w D-SSIM) of
+    render(gaussians, camera) against `truth`. Rotation at `lr` radians, translation at `lr` x extent,
+    gain and offset at `lr`, all decaying log-linearly to lr / 100. The aligned view is
+    expose(render(move_gaussians(gaussians, V, omega, tau), camera), gain, offset); what is not
+    fitted stays zero."""
     device = gaussians.means.device
     frozen = Deformed(*(t.detach() for t in (gaussians.means, gaussians.quats, gaussians.scales,
                                              gaussians.opacities, gaussians.colors)))  # fmt: skip
-    omega = torch.zeros(3, device=device, requires_grad=True)
-    tau = torch.zeros(3, device=device, requires_grad=True)
-    optimizer = torch.optim.Adam([dict(params=[omega]), dict(params=[tau])], lr=lr)
+    omega, tau, gain, offset = (torch.zeros(3, device=device, requires_grad=True) for _ in range(4))
+    groups = ([(omega, 1.0), (tau, extent)] if alignment.pose else []) + (
+        [(gain, 1.0), (offset, 1.0)] if alignment.exposure else []
+    )
+    if not groups:
+        return omega.detach(), tau.detach(), gain.detach(), offset.detach()
+    optimizer = torch.optim.Adam([dict(params=[p], scale=scale) for p, scale in groups], lr=lr)
     viewmat = camera.viewmat.to(device)
     with torch.enable_grad():
         for step in range(steps):
             rate = log_linear_lr(step, lr, lr / 100, max(steps - 1, 1))
-            optimizer.param_groups[0]["lr"], optimizer.param_groups[1]["lr"] = rate, rate * extent
-            rgb = render(move_gaussians(frozen, viewmat, omega, tau), camera)
+            for group in optimizer.param_groups:
+                group["lr"] = rate * group["scale"]
+            rgb = expose(render(move_gaussians(frozen, viewmat, omega, tau), camera), gain, offset)
             loss = (1.0 - ssim_weight) * (rgb - truth).abs().mean() + ssim_weight * (1.0 - ssim(rgb, truth))
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
             optimizer.step()
-    return omega.detach(), tau.detach()
+    return omega.detach(), tau.detach(), gain.detach(), offset.detach()
 
 
-def aligned_render(deformed_at, render, cfg: CameraRefineConfig, extent: float, ssim_weight: float):
-    """A render function for evaluate_views that scores a view from its camera aligned to the frozen
-    scene: deformed_at(time) gives the Gaussians, render(gaussians, camera) the image."""
+def aligned_render(deformed_at, render, cfg: CameraRefineConfig, extent: float, ssim_weight: float,
+                   alignment: Alignment = POSE_ONLY):  # fmt: skip
+    """A render function for evaluate_views that scores a view aligned to the frozen scene (its pose,
+    its exposure, as `alignment` says): deformed_at(time) gives the Gaussians, render(gaussians,
+    camera) the image."""
 
     def render_aligned(frame):
         gaussians = deformed_at(frame.time)
         truth = frame.image().to(gaussians.means.device)
-        omega, tau = align_camera(render, gaussians, frame.camera, truth, steps=cfg.align_steps, lr=cfg.align_lr,
-                                  extent=extent, ssim_weight=ssim_weight)  # fmt: skip
+        omega, tau, gain, offset = align_camera(render, gaussians, frame.camera, truth, steps=cfg.align_steps,
+                                                lr=cfg.align_lr, extent=extent, ssim_weight=ssim_weight,
+                                                alignment=alignment)  # fmt: skip
         viewmat = frame.camera.viewmat.to(gaussians.means.device)
-        return render(move_gaussians(gaussians, viewmat, omega, tau), frame.camera)
+        return expose(render(move_gaussians(gaussians, viewmat, omega, tau), frame.camera), gain, offset)
 
     return render_aligned
-
-
-def alignment_protocol(cfg: CameraRefineConfig) -> str:
-    return (
-        f"each test camera aligned to the frozen scene by pose-only optimisation: {cfg.align_steps} Adam steps on "
-        f"a rotation and translation correction (rotation lr {cfg.align_lr:g} rad, translation lr {cfg.align_lr:g} x "
-        "the train cameras' extent, both decaying log-linearly to 1/100), training loss"
-    )

@@ -33,7 +33,8 @@ from liquidgs.fields.config import (
 from liquidgs.fields.registry import check_recorded_field, field_record
 from liquidgs.render import BACKENDS
 from liquidgs.settings import to_dict, with_settings
-from liquidgs.train.camera_opt import CameraRefineConfig, known_format, refines
+from liquidgs.train.camera_opt import Alignment, CameraRefineConfig, known_format, refines
+from liquidgs.train.exposure import ExposureConfig, compensates
 from liquidgs.train.motion_reg import MotionRegConfig, regularises
 from liquidgs.train.strategy import DensifyConfig
 
@@ -121,7 +122,10 @@ class TrainConfig:
     cameras: CameraRefineConfig = dataclasses.field(default_factory=CameraRefineConfig)
     """Camera refinement (on for captures, off for D-NeRF) and the aligned evaluation of test cameras."""
     motion: MotionRegConfig = dataclasses.field(default_factory=MotionRegConfig)
-    """Rigidity and isometry over each Gaussian's nearest neighbours (on for captures, off for D-NeRF)."""
+    """Rigidity and isometry over each Gaussian's nearest neighbours, and sizes held (on for captures,
+    off for D-NeRF)."""
+    exposure: ExposureConfig = dataclasses.field(default_factory=ExposureConfig)
+    """A colour correction per training frame (on for captures, off for D-NeRF)."""
 
     def __post_init__(self) -> None:
         own = field_options_class(self.field)
@@ -129,6 +133,12 @@ class TrainConfig:
             shared = {f.name: getattr(self.field_options, f.name) for f in dataclasses.fields(FieldOptions)}
             self.field_options = own(**shared)
         validate(self)
+
+    def alignment(self, data_format: str | None) -> Alignment | None:
+        """How a test view of this run is aligned before its second, labelled score: its pose where the
+        run refines its cameras, its exposure where it compensates exposure; None where neither."""
+        pose, exposure = refines(self.cameras, data_format), compensates(self.exposure, data_format)
+        return Alignment(pose=pose, exposure=exposure) if pose or exposure else None
 
     @classmethod
     def settings_group(cls, key: str, raw: dict) -> type:
@@ -347,8 +357,16 @@ def identity_v2(cfg: TrainConfig) -> dict:
         del d["cameras"]
     if regularises(cfg.motion, data_format, cfg.field):  # the motion regularisers likewise
         d["motion"]["apply"] = "on"
+        if not cfg.motion.fixed_sizes:  # the regularisers' runs made before sizes could be held
+            del d["motion"]["fixed_sizes"]
     else:
         del d["motion"]
+    if compensates(cfg.exposure, data_format):  # and exposure compensation
+        d["exposure"]["apply"] = "on"
+    else:
+        del d["exposure"]
+    if not cfg.perturb.exposure:  # the exposure-flicker stress test, added after version 2
+        del d["perturb"]["exposure"]
     d["data"]["path"] = str(Path(d["data"]["path"]).resolve())
     d["identity"] = _IDENTITY_MARKER
     return d
@@ -471,4 +489,8 @@ def from_dict(raw: dict, source: Path | str = "config") -> TrainConfig:
         raw = {**raw, "cameras": {"refine": "off"}}
     if "motion" not in raw:  # stored before the motion regularisers existed: trained without them
         raw = {**raw, "motion": {"apply": "off"}}
+    elif isinstance(raw["motion"], dict) and "fixed_sizes" not in raw["motion"]:  # before sizes could be held
+        raw = {**raw, "motion": {**raw["motion"], "fixed_sizes": False}}
+    if "exposure" not in raw:  # stored before exposure compensation existed: trained without it
+        raw = {**raw, "exposure": {"apply": "off"}}
     return settings.from_dict(TrainConfig, raw, source)

@@ -49,6 +49,19 @@ def deform(
     )
 
 
+def hold_sizes(field: torch.nn.Module) -> torch.nn.Module:
+    """The field with its size deltas dropped: it moves and turns Gaussians, never resizes them (the
+    motion setting fixed_sizes). A forward hook, so any registered field takes it and its weights and
+    checkpoints are unchanged."""
+
+    def without_size_deltas(_module, _inputs, deltas):
+        d_xyz, d_rotation, d_scaling = deltas
+        return d_xyz, d_rotation, torch.zeros_like(d_scaling)
+
+    field.register_forward_hook(without_size_deltas)
+    return field
+
+
 def render_frame(
     gaussians: Deformed,
     camera: Camera,

@@ -15,7 +15,7 @@ from liquidgs.errors import ConfigError, LiquidGSError
 from liquidgs.fields import build_field
 from liquidgs.gaussians import PARAM_KEYS
 from liquidgs.train.config import TrainConfig, load_yaml
-from liquidgs.train.model import Deformed, deform, render_frame
+from liquidgs.train.model import Deformed, deform, hold_sizes, render_frame
 from liquidgs.train.run_folder import CHECKPOINT, CONFIG, FAILURE, RESULTS, read_checkpoint
 
 
@@ -101,6 +101,8 @@ def load_run(run_dir: str | Path, device: str = "auto") -> TrainedRun:
     except RuntimeError as err:  # weights of another field than config.yml describes
         raise LiquidGSError(f"{run_dir / CHECKPOINT}: corrupt or unreadable checkpoint ({err})") from None
     state = payload["state"]
+    if payload.get("sizes_held", False):  # trained with the size deltas dropped (motion.fixed_sizes)
+        hold_sizes(field)
     field = field.to(dev).eval()
     field.set_progress(int(state["iteration"]))  # annealed noise schedules resume where training ended
     iteration = int(state["iteration"])

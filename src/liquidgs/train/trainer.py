@@ -25,16 +25,18 @@ from liquidgs.eval.collapse import BACKGROUND_MARGIN_DB, LEARNED_MARGIN_DB, back
 from liquidgs.eval.metrics import MIN_MSE, psnr_from_mse
 from liquidgs.fields import build_field
 from liquidgs.gaussians import PARAM_KEYS, init_from_points, init_random_box
-from liquidgs.train.camera_opt import CameraRefinement, aligned_render, alignment_protocol, refines
+from liquidgs.train.camera_opt import CameraRefinement, aligned_render, refines
 from liquidgs.train.config import TrainConfig, save_yaml
-from liquidgs.train.model import deform, render_frame
-from liquidgs.train.motion_reg import MotionRegulariser, regularises
+from liquidgs.train.exposure import ExposureCompensation, compensates
+from liquidgs.train.model import deform, hold_sizes, render_frame
+from liquidgs.train.motion_reg import MotionRegulariser, holds_sizes, regularises
 from liquidgs.train.phases import NoClock, PhaseClock
 from liquidgs.train.run import load_run_dataset, resolve_device
 from liquidgs.train.run_folder import (
     CAMERAS_REFINED,
     CHECKPOINT,
     CONFIG,
+    EXPOSURE,
     FAILURE,
     PER_VIEW,
     TENSORBOARD,
@@ -130,6 +132,9 @@ class Trainer:
         self.camera_rng = np.random.default_rng(cfg.seed)
         self.params = self._initial_gaussians().to(self.device)
         self.field = build_field(cfg.field_config()).to(self.device)
+        self.sizes_held = holds_sizes(cfg.motion, self.dataset.format, cfg.field)
+        if self.sizes_held:
+            hold_sizes(self.field)
         self.field.begin_training(self.params["means"].detach())  # its set-up hook; checks its outputs
         self.optimizers = {key: self._adam([self.params[key]], self._static_lr(key)) for key in PARAM_KEYS}
         self.field_optimizer = self._field_adam()
@@ -142,9 +147,16 @@ class Trainer:
                              self.device, cfg.optim.adam_eps, self._true_cameras(clean), self.dataset.points)
             if refines(cfg.cameras, self.dataset.format) else None
         )  # fmt: skip
-        self.motion = (  # neighbour rigidity / isometry on the deformation, or None
-            MotionRegulariser(cfg.motion) if regularises(cfg.motion, self.dataset.format, cfg.field) else None
+        self.motion = (  # neighbour rigidity / isometry on the deformation, or None (also at zero weights)
+            MotionRegulariser(cfg.motion)
+            if regularises(cfg.motion, self.dataset.format, cfg.field) and cfg.motion.weighted else None
         )
+        self.exposure = (  # a colour correction per training frame, or None
+            ExposureCompensation(cfg.exposure, self.dataset.train, cfg.iterations, self.device, cfg.optim.adam_eps)
+            if compensates(cfg.exposure, self.dataset.format) else None
+        )  # fmt: skip
+        self.alignment = cfg.alignment(self.dataset.format)
+        """How test views are aligned for the second score (None: the run has only the first)."""
         self.state = TrainState()
         self.checkpoint_iteration: int | None = None
         """Iteration of the checkpoint on disk, once this trainer has written or read one."""
@@ -279,8 +291,9 @@ class Trainer:
         clock.mark("field_forward")
         out = self._render(gaussians, frame, absgrad=cfg.densify.gradient == "absolute")
         clock.mark("raster_forward")
-        l1 = (out.rgb - gt).abs().mean()
-        loss = (1.0 - cfg.ssim_weight) * l1 + cfg.ssim_weight * (1.0 - ssim(out.rgb, gt))
+        rgb = out.rgb if self.exposure is None else self.exposure.correct(out.rgb, index)
+        l1 = (rgb - gt).abs().mean()
+        loss = (1.0 - cfg.ssim_weight) * l1 + cfg.ssim_weight * (1.0 - ssim(rgb, gt))
         regulariser = self.field.regulariser_loss() if use_field else None  # the field's own term
         if regulariser is not None:
             loss = loss + regulariser
@@ -309,9 +322,11 @@ class Trainer:
             self.field_optimizer.zero_grad(set_to_none=True)
         if self.cameras is not None:
             self.cameras.step(step)
+        if self.exposure is not None:
+            self.exposure.step(step)
         clock.mark("optimizer_step")
         with torch.no_grad():
-            mse = ((out.rgb.detach().clamp(0, 1) - gt) ** 2).mean()
+            mse = ((rgb.detach().clamp(0, 1) - gt) ** 2).mean()
             train_psnr = float(psnr_from_mse(mse.clamp_min(MIN_MSE)))
             empty_psnr = background_psnr(gt, self.background)
         self._guard_divergence(step, train_psnr, empty_psnr)
@@ -478,13 +493,13 @@ class Trainer:
             self.field.train()
 
     def evaluate_aligned(self) -> dict:
-        """The test split scored with each test camera aligned to the frozen scene (pose-only, per view):
-        the second, labelled score of a run that refines its cameras."""
+        """The test split scored with each test view aligned to the frozen scene (its pose, its exposure,
+        as self.alignment says): the second, labelled score of a run that refines either."""
         render = aligned_render(
             lambda time: deform(self.params, self.field if self.cfg.field != "static" else None, time),
             lambda gaussians, camera: render_frame(gaussians, camera, sh_degree=self.state.sh_degree,
                                                    background=self.background, backend=self.cfg.backend).rgb,
-            self.cfg.cameras, self.dataset.camera_extent, self.cfg.ssim_weight,
+            self.cfg.cameras, self.dataset.camera_extent, self.cfg.ssim_weight, self.alignment,
         )  # fmt: skip
         self.field.eval()
         try:
@@ -492,7 +507,7 @@ class Trainer:
                                         quantize=self.cfg.eval.quantize_8bit)  # fmt: skip
         finally:
             self.field.train()
-        return {"iteration": self.cfg.iterations, **summary, "cameras": alignment_protocol(self.cfg.cameras)}
+        return {"iteration": self.cfg.iterations, **summary, "cameras": self.alignment.protocol(self.cfg.cameras)}
 
     def evaluate_and_record(self, step: int) -> None:
         summary, per_view = self.evaluate()
@@ -566,7 +581,7 @@ class Trainer:
             resolution=[self.dataset.train[0].camera.width, self.dataset.train[0].camera.height],
             perturb=cfg.perturb.settings(),
             views={"train": len(self.dataset.train), "test": len(self.dataset.test)},
-            final_aligned=self.evaluate_aligned() if self.cameras is not None else {},
+            final_aligned=self.evaluate_aligned() if self.alignment is not None else {},
             threads=torch.get_num_threads(),
         )
         write_per_view(self.run_dir / PER_VIEW, cfg.iterations, per_view)
@@ -602,10 +617,14 @@ class Trainer:
             "camera_rng": self.camera_rng.bit_generator.state,
             "cameras": self.cameras.state_dict() if self.cameras is not None else None,
             "motion": self.motion.state_dict() if self.motion is not None else None,
+            "exposure": self.exposure.state_dict() if self.exposure is not None else None,
+            "sizes_held": self.sizes_held,
         }
         path = write_checkpoint(self.run_dir, contents)
         if self.cameras is not None:
             self.cameras.write(self.run_dir / CAMERAS_REFINED, self.state.iteration)
+        if self.exposure is not None:
+            self.exposure.write(self.run_dir / EXPOSURE, self.state.iteration)
         self.checkpoint_iteration = self.state.iteration
         return path
 
@@ -618,6 +637,8 @@ class Trainer:
                 self.cameras.load_state_dict(payload.get("cameras"), path)
             if self.motion is not None:
                 self.motion.load_state_dict(payload.get("motion"))
+            if self.exposure is not None:  # likewise "exposure"
+                self.exposure.load_state_dict(payload.get("exposure"), path)
         except FieldGroupsChanged as err:
             raise LiquidGSError(f"{path}: {err}") from None
         except (KeyError, TypeError, ValueError, RuntimeError) as err:  # weights of another config

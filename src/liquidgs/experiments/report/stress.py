@@ -44,6 +44,7 @@ PERTURBATION_TEXT = {
     "keep_frames": "fewer frames (training frames kept; 0 = all)",
     "time_split": "extrapolation in time (train t < T0, test t >= T0; 0 = interpolation)",
     "image_noise": "image noise (std on pixel values in [0, 1])",
+    "exposure": "exposure flicker (std of each frame's per-channel gain)",
 }
 
 

@@ -8,6 +8,7 @@ experiments read. Readers import this package, never the training loop.
     failure.json      why a run that failed (diverged, collapsed) stopped; removed when it finishes
     results.json      RunResults (RESULTS_FORMAT), written last: the run's only "done" marker
     cameras_refined.json  how far camera refinement moved each training camera (runs that refine)
+    exposure.json     the colour correction learned for each training frame (runs that compensate)
     tensorboard/      training curves
     eval.json, eval_per_view.json   written by `liquidgs eval`
     .liquidgs.lock    held by the one process writing the folder (lock.py)
@@ -22,6 +23,7 @@ from liquidgs.train.run_folder.layout import (
     CONFIG,
     EVAL,
     EVAL_PER_VIEW,
+    EXPOSURE,
     FAILURE,
     LOCK_NAME,
     PER_VIEW,
@@ -54,6 +56,7 @@ __all__ = [
     "CONFIG",
     "EVAL",
     "EVAL_PER_VIEW",
+    "EXPOSURE",
     "FAILURE",
     "LOCK_NAME",
     "PER_VIEW",

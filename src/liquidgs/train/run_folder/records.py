@@ -62,9 +62,10 @@ class RunResults:
     views: dict
     """{"train": n, "test": n}."""
     final_aligned: dict = dataclasses.field(default_factory=dict)
-    """Runs that refine their cameras: the final evaluation again with each test camera aligned to the
-    frozen scene (its "cameras" says how); `final` is with the test cameras as given. Empty for a run
-    that does not refine, and then left out of results.json, as before refinement existed."""
+    """Runs that refine their cameras or compensate exposure: the final evaluation again with each test
+    view aligned to the frozen scene, its pose and exposure (its "cameras" says how); `final` is with
+    the test cameras as given. Empty for a run that does neither, and then left out of results.json,
+    as before refinement existed."""
     threads: int | None = None
     """torch's intra-op threads, which the compiled CPU kernels use too (train.run.training_threads);
     None in results written before it was recorded. Some results depend on it (docs/training.md says which)."""
