@@ -105,6 +105,8 @@ def test_builtin_fields_and_hexplane_register_through_the_public_api(monkeypatch
     assert {field_type(n).package for n in field_names()} == {"liquidgs"}
     assert [field_type(n).family for n in field_names()] == ["static", "mlp", "liquid", "liquid", None]
     assert field_type("hexplane").presets == ("dnerf", "nerfds", "tiny")
+    # The grid is the one built-in field whose deformation is local (motion_reg's default weights).
+    assert [n for n in field_names() if field_type(n).local_deformation] == ["hexplane"]
     with pytest.raises(ConfigError, match="field 'hexplane' takes its sizes from its preset.*mlp_depth"):
         FieldConfig(name="hexplane", preset="tiny", mlp_depth=3)
     with pytest.raises(ConfigError, match="hexplane.*lambda must be 0"):
@@ -222,6 +224,7 @@ def test_two_packages_registering_one_name_is_one_line_naming_both(tmp_path, mon
         ),
         (dict(family="unet"), "field 'new': unknown family 'unet'"),
         (dict(factory=3), "field 'new': the factory must be callable"),
+        (dict(local_deformation="yes"), "field 'new': local_deformation must be True or False, got 'yes'"),
     ],
 )
 def test_bad_registrations_are_refused(monkeypatch, kwargs, message):

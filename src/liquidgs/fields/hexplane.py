@@ -273,4 +273,4 @@ def build(config: FieldConfig) -> HexPlaneField:
 
 def register() -> None:
     """The 'liquidgs.fields' entry point (liquidgs' pyproject.toml): hexplane registers as a plugin would."""
-    register_field("hexplane", build, presets=PRESETS, label="HexPlane (4D-GS)")
+    register_field("hexplane", build, presets=PRESETS, label="HexPlane (4D-GS)", local_deformation=True)

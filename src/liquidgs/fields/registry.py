@@ -39,6 +39,12 @@ The contract a field satisfies (fields/base.py's DeformationField; subclass it):
   grid at 10). A field's state that setup sets must be a parameter or a persistent buffer, so
   checkpoints carry it.
 
+Spatially local deformation: a field whose deformation has parameters per region of space (a
+grid: hexplane) registers `local_deformation=True`. Neighbouring Gaussians can then move apart
+freely, so captures train it with the neighbour motion regularisers by default (train/motion_reg.py);
+a field that is one network over all of space (mlp, cfc, sde) is smooth in space already and trains
+without them unless asked.
+
 Own settings: a field may register `options`, a dataclass whose every setting has a default
 (int, float, bool, str, a Literal, a tuple, or one of those or None). Its settings are the field's
 --field-options.* (train, experiment spec overrides), stored in config.yml with the others and part
@@ -101,6 +107,8 @@ class FieldType:
     """The dataclass of the field's own settings (--field-options.*), or None."""
     default_lambda: float | None = None
     """A stochastic field's noise level when none is given; None: the field is deterministic."""
+    local_deformation: bool = False
+    """Its deformation has parameters per region of space (a grid), not one network over all of it."""
 
     @property
     def plugin(self) -> bool:
@@ -170,6 +178,7 @@ class FieldRegistry:
         family: str | None = None,
         options: type | None = None,
         default_lambda: float | None = None,
+        local_deformation: bool = False,
     ) -> None:
         if self._loading is not None:
             package, version = self._loading.package, self._loading.version
@@ -189,9 +198,12 @@ class FieldRegistry:
             isinstance(default_lambda, (int, float)) and 0 <= default_lambda < float("inf")
         ):
             raise ConfigError(f"field '{name}': default_lambda must be a finite number >= 0, got {default_lambda!r}")
+        if not isinstance(local_deformation, bool):
+            raise ConfigError(f"field '{name}': local_deformation must be True or False, got {local_deformation!r}")
         if options is not None:
             _options_check(name, options)
-        new = FieldType(name, factory, label or name, presets, family, package, version, options, default_lambda)
+        new = FieldType(name, factory, label or name, presets, family, package, version, options, default_lambda,
+                        local_deformation)  # fmt: skip
         if name in self._conflicts:
             return
         first = self._fields.get(name)
@@ -289,6 +301,7 @@ def register(
     family: str | None = None,
     options: type | None = None,
     default_lambda: float | None = None,
+    local_deformation: bool = False,
 ) -> None:
     """Make a field available under `name` (see the module docstring for the contract).
 
@@ -297,12 +310,13 @@ def register(
     the built-in FieldOptions sizes ('mlp', 'liquid'); leave it None to size the field by its
     preset alone. options: the dataclass of the field's own settings (--field-options.*), read by
     the factory as config.options. default_lambda: makes the field stochastic, with this noise
-    level when --lambda is not given. Raises ConfigError for a bad name, preset, family or
-    options, or (outside a plugin's entry point) a name already taken.
+    level when --lambda is not given. local_deformation: the deformation has parameters per region
+    of space (a grid), so captures train the field with the motion regularisers by default. Raises
+    ConfigError for a bad name, preset, family or options, or (outside a plugin's entry point) a
+    name already taken.
     """
-    REGISTRY.register(
-        name, factory, presets=presets, label=label, family=family, options=options, default_lambda=default_lambda
-    )
+    REGISTRY.register(name, factory, presets=presets, label=label, family=family, options=options,
+                      default_lambda=default_lambda, local_deformation=local_deformation)  # fmt: skip
 
 
 def field_names() -> tuple[str, ...]:

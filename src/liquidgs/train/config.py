@@ -35,7 +35,7 @@ from liquidgs.render import BACKENDS
 from liquidgs.settings import to_dict, with_settings
 from liquidgs.train.camera_opt import Alignment, CameraRefineConfig, known_format, refines
 from liquidgs.train.exposure import ExposureConfig, compensates
-from liquidgs.train.motion_reg import MotionRegConfig, regularises
+from liquidgs.train.motion_reg import MotionRegConfig, motion_applies
 from liquidgs.train.strategy import DensifyConfig
 
 
@@ -355,7 +355,7 @@ def identity_v2(cfg: TrainConfig) -> dict:
         d["cameras"]["refine"] = "on"
     else:
         del d["cameras"]
-    if regularises(cfg.motion, data_format, cfg.field):  # the motion regularisers likewise
+    if motion_applies(cfg.motion, data_format, cfg.field):  # the motion regularisers likewise
         d["motion"]["apply"] = "on"
         if not cfg.motion.fixed_sizes:  # the regularisers' runs made before sizes could be held
             del d["motion"]["fixed_sizes"]

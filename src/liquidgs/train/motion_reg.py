@@ -10,6 +10,14 @@ loss: that acts on its sparse control nodes, which liquidgs's per-Gaussian field
   R_i(t) R_i(0)^T (x_j(0) - x_i(0)), with R from the deformed and canonical rotations;
 - isometry: neighbour distances are kept: | |x_j(t) - x_i(t)| - |x_j(0) - x_i(0)| |.
 
+Their weights depend on the field unless given: 0.5 each for a field registered with
+`local_deformation` (HexPlane: a grid, whose cells let neighbouring Gaussians move apart), 0 for one
+network over all of space (the MLP, the CfC, SDE-LNN), which is smooth in space already. On the
+real-clip benchmark (docs/results/real-clips.md) the terms at 0.5 held the MLP's and CfC's
+deformation almost still (a tie with the static model on a moving cat, where without them they
+gain 3 dB) while HexPlane needed them: without them it scored 2.2 dB above the static model on a
+clip where nothing moves, with them -0.1.
+
 Both are means over `anchors` Gaussians drawn each step (torch's generator, so a resumed run draws
 the same) and their k neighbours, found once per `knn_every` iterations and whenever the Gaussians
 were added or removed; the neighbour table is checkpointed so a resumed run continues bit-exactly.
@@ -27,9 +35,12 @@ from scipy.spatial import cKDTree
 
 from liquidgs.data.loading import for_captures
 from liquidgs.errors import ConfigError
+from liquidgs.fields.registry import field_type
 from liquidgs.render.projection import quat_to_rotmat
 
 APPLY_CHOICES = ("auto", "on", "off")
+LOCAL_FIELD_WEIGHT = 0.5
+"""Each neighbour term's weight, unless set, for a field registered with local_deformation."""
 
 
 @dataclass
@@ -37,12 +48,14 @@ class MotionRegConfig:
     """Neighbour regularisers on the deformation (Dynamic 3D Gaussians' rigidity and isometry)."""
 
     apply: Literal["auto", "on", "off"] = "auto"
-    """auto: on for captures (the Nerfies layout), off for D-NeRF. A config.yml made before these
-    regularisers existed has none, and trains without them (off). Only fields that deform."""
-    rigidity: float = 0.5
-    """Weight of the local-rigidity term."""
-    isometry: float = 0.5
-    """Weight of the isometry term."""
+    """auto: on for captures (the Nerfies layout), off for D-NeRF: the regularisers at their weights
+    and the sizes held (fixed_sizes). A config.yml made before these regularisers existed has none,
+    and trains without them (off). Only fields that deform."""
+    rigidity: float | None = None
+    """Weight of the local-rigidity term; None: the field's (0.5 for a field registered with
+    local_deformation, such as hexplane; 0 for mlp, cfc, sde)."""
+    isometry: float | None = None
+    """Weight of the isometry term; None: the field's, as for rigidity."""
     neighbours: int = 8
     anchors: int = 2048
     """Gaussians the terms are averaged over each step (all when fewer)."""
@@ -53,10 +66,10 @@ class MotionRegConfig:
     viewpoint alone: on a clip where nothing moves it scored 1.9 dB above the static model. A
     config.yml made before this setting trained with sizes free (false)."""
 
-    @property
-    def weighted(self) -> bool:
-        """Whether either neighbour term counts (at zero weights the trainer skips them)."""
-        return self.rigidity > 0 or self.isometry > 0
+    def weights(self, field: str) -> tuple[float, float]:
+        """(rigidity, isometry) for a run of `field`: each as set, or the field's default."""
+        default = LOCAL_FIELD_WEIGHT if field_type(field).local_deformation else 0.0
+        return tuple(default if w is None else float(w) for w in (self.rigidity, self.isometry))
 
     def __post_init__(self) -> None:
         if self.apply not in APPLY_CHOICES:
@@ -69,17 +82,28 @@ class MotionRegConfig:
             raise ConfigError(f"motion.fixed-sizes must be true or false, got {self.fixed_sizes!r}")
         for name in ("rigidity", "isometry"):
             value = getattr(self, name)
+            if value is None:
+                continue
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
                 raise ConfigError(f"motion.{name} must be a finite number >= 0, got {value!r}")
 
 
-def regularises(cfg: MotionRegConfig, data_format: str | None, field: str) -> bool:
+def motion_applies(cfg: MotionRegConfig, data_format: str | None, field: str) -> bool:
+    """Whether these settings shape the run's motion (its regularisers at their weights, its sizes)."""
     return field != "static" and for_captures(cfg.apply, data_format)
+
+
+def regularisation(cfg: MotionRegConfig, data_format: str | None, field: str) -> tuple[float, float] | None:
+    """The run's (rigidity, isometry) weights, or None where it trains without the neighbour terms."""
+    if not motion_applies(cfg, data_format, field):
+        return None
+    weights = cfg.weights(field)
+    return weights if any(w > 0 for w in weights) else None
 
 
 def holds_sizes(cfg: MotionRegConfig, data_format: str | None, field: str) -> bool:
     """Whether the field's size deltas are dropped in this run (see MotionRegConfig.fixed_sizes)."""
-    return cfg.fixed_sizes and regularises(cfg, data_format, field)
+    return cfg.fixed_sizes and motion_applies(cfg, data_format, field)
 
 
 def nearest_neighbours(points: torch.Tensor, k: int) -> torch.Tensor:
@@ -98,8 +122,9 @@ def nearest_neighbours(points: torch.Tensor, k: int) -> torch.Tensor:
 
 
 class MotionRegulariser:
-    def __init__(self, cfg: MotionRegConfig):
+    def __init__(self, cfg: MotionRegConfig, weights: tuple[float, float]):
         self.cfg = cfg
+        self.rigidity, self.isometry = weights
         self.table: torch.Tensor | None = None
         self.table_step = -1
 
@@ -120,13 +145,13 @@ class MotionRegulariser:
         offset0 = x0[rows] - x0[i]  # [A, k, 3]
         offset_t = means[rows] - means[i]
         terms = canonical_means.new_zeros(())
-        if c.rigidity > 0:
+        if self.rigidity > 0:
             r0 = quat_to_rotmat(canonical_quats.detach()[i[:, 0]])
             rt = quat_to_rotmat(quats[i[:, 0]])
             turned = torch.einsum("aij,akj->aki", rt @ r0.transpose(1, 2), offset0)
-            terms = terms + c.rigidity * (offset_t - turned).norm(dim=-1).mean()
-        if c.isometry > 0:
-            terms = terms + c.isometry * (offset_t.norm(dim=-1) - offset0.norm(dim=-1)).abs().mean()
+            terms = terms + self.rigidity * (offset_t - turned).norm(dim=-1).mean()
+        if self.isometry > 0:
+            terms = terms + self.isometry * (offset_t.norm(dim=-1) - offset0.norm(dim=-1)).abs().mean()
         return terms
 
     def state_dict(self) -> dict:

@@ -29,7 +29,7 @@ from liquidgs.train.camera_opt import CameraRefinement, aligned_render, refines
 from liquidgs.train.config import TrainConfig, save_yaml
 from liquidgs.train.exposure import ExposureCompensation, compensates
 from liquidgs.train.model import deform, hold_sizes, render_frame
-from liquidgs.train.motion_reg import MotionRegulariser, holds_sizes, regularises
+from liquidgs.train.motion_reg import MotionRegulariser, holds_sizes, regularisation
 from liquidgs.train.phases import NoClock, PhaseClock
 from liquidgs.train.run import load_run_dataset, resolve_device
 from liquidgs.train.run_folder import (
@@ -147,10 +147,9 @@ class Trainer:
                              self.device, cfg.optim.adam_eps, self._true_cameras(clean), self.dataset.points)
             if refines(cfg.cameras, self.dataset.format) else None
         )  # fmt: skip
-        self.motion = (  # neighbour rigidity / isometry on the deformation, or None (also at zero weights)
-            MotionRegulariser(cfg.motion)
-            if regularises(cfg.motion, self.dataset.format, cfg.field) and cfg.motion.weighted else None
-        )
+        weights = regularisation(cfg.motion, self.dataset.format, cfg.field)
+        # Neighbour rigidity / isometry on the deformation, or None (also where both weights are 0).
+        self.motion = MotionRegulariser(cfg.motion, weights) if weights is not None else None
         self.exposure = (  # a colour correction per training frame, or None
             ExposureCompensation(cfg.exposure, self.dataset.train, cfg.iterations, self.device, cfg.optim.adam_eps)
             if compensates(cfg.exposure, self.dataset.format) else None
