@@ -6,12 +6,14 @@ eval`'s alignment, camera_opt.aligned_render).
     python docs/experiments/real_clips_strips.py EXPERIMENT_DIR OUT_DIR
 
 EXPERIMENT_DIR is `liquidgs experiment run docs/experiments/real-clips.yml`'s folder; OUT_DIR also gets
-<clip>.txt (each row's view and time). A field with no finished run is a grey column.
+<clip>.txt (each row's view and time). Runs of seed 0; a field with no finished run of it is a grey
+column.
 The pictures are made from the clips, whose licences forbid putting them in this repository.
 """
 
 from __future__ import annotations
 
+import json
 import sys
 from pathlib import Path
 
@@ -24,12 +26,15 @@ from liquidgs.train.model import render_frame
 from liquidgs.train.run import load_run, load_run_dataset
 
 COLUMNS = ("static", "mlp", "cfc", "hexplane")
+PICTURED_SEED = 0
 GAP = 2
 
 
 def finished_run(scene_dir: Path, field: str) -> Path | None:
-    """The field's one finished run folder under the scene (a results.json marks it done)."""
-    runs = sorted(p.parent for p in (scene_dir / field).glob("*/results.json"))
+    """The field's finished run of seed 0 under the scene (a results.json marks it done): a clip with
+    several seeds is pictured with the same seed in every column."""
+    runs = sorted(p.parent for p in (scene_dir / field).glob("*/results.json")
+                  if json.loads(p.read_text()).get("seed") == PICTURED_SEED)  # fmt: skip
     return runs[-1] if runs else None
 
 

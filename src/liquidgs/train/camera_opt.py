@@ -38,6 +38,7 @@ from liquidgs.errors import ConfigError, DataError, LiquidGSError
 from liquidgs.eval.metrics import ssim
 from liquidgs.eval.poses import pose_recovery
 from liquidgs.train.exposure import expose
+from liquidgs.train.frame_corrections import FrameCorrections
 from liquidgs.train.model import Deformed
 from liquidgs.train.schedules import log_linear_lr
 
@@ -163,8 +164,11 @@ def rotation_deg(omega: torch.Tensor) -> torch.Tensor:
 
 
 # ---------------------------------------------------------------------- training
-class CameraRefinement:
+class CameraRefinement(FrameCorrections):
     """The corrections of a run's training cameras, their Adam and their schedule."""
+
+    KEYS = ("rotations", "translations")
+    WHAT, VERB, OFF_FLAG = "camera refinement", "refines", "--cameras.refine off"
 
     def __init__(
         self,
@@ -180,16 +184,14 @@ class CameraRefinement:
         """`true_cameras`: where the frames' cameras really are, when the run made them noisy on purpose
         (the pose perturbation): the report then says how far refinement brought them back, measured
         with the scene's `points` too when it has them."""
+        super().__init__(frames, device)
         self.cfg = cfg
-        self.names = [frame.name for frame in frames]
         self.given = torch.stack([frame.camera.viewmat for frame in frames]).cpu()
         self.intrinsics = torch.stack([frame.camera.K for frame in frames]).cpu()
         self.truth = None if true_cameras is None else torch.stack([camera.viewmat for camera in true_cameras]).cpu()
         self.points = points
         self.extent = extent
         self.lr_steps = cfg.lr_steps or iterations
-        self.rotations = torch.nn.Parameter(torch.zeros(len(frames), 3, device=device))
-        self.translations = torch.nn.Parameter(torch.zeros(len(frames), 3, device=device))
         self.optimizer = torch.optim.Adam(
             [dict(params=[self.rotations], name="rotation"), dict(params=[self.translations], name="translation")],
             lr=cfg.rotation_lr, eps=adam_eps,
@@ -232,25 +234,6 @@ class CameraRefinement:
                     f"{float(moved[i]):.3f} x the camera extent (bound {self.cfg.max_translation:g}); its pose "
                     "is likely wrong: drop the frame, or train with --cameras.refine off"
                 )
-
-    def state_dict(self) -> dict:
-        return {
-            "names": list(self.names),
-            "rotations": self.rotations.detach().cpu().clone(),
-            "translations": self.translations.detach().cpu().clone(),
-            "optimizer": self.optimizer.state_dict(),
-        }
-
-    def load_state_dict(self, saved: dict | None, source: Path) -> None:
-        if saved is None:
-            raise LiquidGSError(f"{source}: the checkpoint was trained without camera refinement; "
-                                "resume it with --cameras.refine off")  # fmt: skip
-        if saved["names"] != self.names:
-            raise LiquidGSError(f"{source}: the checkpoint refines other training frames than the scene holds")
-        with torch.no_grad():
-            self.rotations.copy_(saved["rotations"])
-            self.translations.copy_(saved["translations"])
-        self.optimizer.load_state_dict(saved["optimizer"])
 
     def refined_viewmats(self) -> torch.Tensor:
         """The training cameras' world->camera matrices [N, 4, 4] with their corrections."""

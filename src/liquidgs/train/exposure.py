@@ -25,6 +25,7 @@ import torch
 from liquidgs.atomic import write_json_atomic
 from liquidgs.data.loading import for_captures
 from liquidgs.errors import ConfigError, LiquidGSError
+from liquidgs.train.frame_corrections import FrameCorrections
 from liquidgs.train.schedules import log_linear_lr
 
 APPLY_CHOICES = ("auto", "on", "off")
@@ -63,15 +64,16 @@ def expose(rgb: torch.Tensor, gain: torch.Tensor, offset: torch.Tensor) -> torch
     return rgb * (1.0 + gain) + offset
 
 
-class ExposureCompensation:
+class ExposureCompensation(FrameCorrections):
     """The corrections of a run's training frames, their Adam and their schedule."""
 
+    KEYS = ("gains", "offsets")
+    WHAT, VERB, OFF_FLAG = "exposure compensation", "compensates", "--exposure.apply off"
+
     def __init__(self, cfg: ExposureConfig, frames: list, iterations: int, device, adam_eps: float):
+        super().__init__(frames, device)
         self.cfg = cfg
-        self.names = [frame.name for frame in frames]
         self.iterations = iterations
-        self.gains = torch.nn.Parameter(torch.zeros(len(frames), 3, device=device))
-        self.offsets = torch.nn.Parameter(torch.zeros(len(frames), 3, device=device))
         self.optimizer = torch.optim.Adam([self.gains, self.offsets], lr=cfg.lr, eps=adam_eps)
         self._updated = False
 
@@ -101,25 +103,6 @@ class ExposureCompensation:
     @staticmethod
     def _triple(values: torch.Tensor) -> str:
         return "(" + ", ".join(f"{float(v):+.3f}" for v in values.detach()) + ")"
-
-    def state_dict(self) -> dict:
-        return {
-            "names": list(self.names),
-            "gains": self.gains.detach().cpu().clone(),
-            "offsets": self.offsets.detach().cpu().clone(),
-            "optimizer": self.optimizer.state_dict(),
-        }
-
-    def load_state_dict(self, saved: dict | None, source: Path) -> None:
-        if saved is None:
-            raise LiquidGSError(f"{source}: the checkpoint was trained without exposure compensation; "
-                                "resume it with --exposure.apply off")  # fmt: skip
-        if saved["names"] != self.names:
-            raise LiquidGSError(f"{source}: the checkpoint compensates other training frames than the scene holds")
-        with torch.no_grad():
-            self.gains.copy_(saved["gains"])
-            self.offsets.copy_(saved["offsets"])
-        self.optimizer.load_state_dict(saved["optimizer"])
 
     def report(self, iteration: int) -> dict:
         """exposure.json: how each training frame's brightness was corrected, readable by a user."""
