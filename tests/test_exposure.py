@@ -47,6 +47,21 @@ def test_on_for_captures_off_for_dnerf():
         ExposureConfig(max_change=0)
 
 
+def test_a_capture_switch_of_another_value_names_the_setting(tmp_path, capsys):
+    """cameras.refine, motion.apply and exposure.apply share their choices: a config.yml with another
+    value is one line naming the file and the setting, and trains nothing."""
+    for group, key in (("cameras", "refine"), ("motion", "apply"), ("exposure", "apply")):
+        out = tmp_path / group
+        out.mkdir()
+        (out / "config.yml").write_text(yaml.safe_dump({"data": {"path": str(tmp_path)}, group: {key: "sometimes"}}))
+        code, _, stderr = run_cli(["train", "--config", str(out / "config.yml"), "--out", str(out / "run")])
+        assert code == 2 and stderr.count("\n") == 1, stderr
+        assert f"config.yml: setting '{group}.{key}' must be one of auto, on, off, got 'sometimes'" in stderr
+        assert not (out / "run").exists()
+    with pytest.raises(ConfigError, match="exposure.apply must be one of auto, on, off, got 'sometimes'"):
+        ExposureConfig(apply="sometimes")  # built in code, past the settings loader
+
+
 def test_a_frame_s_correction_learns_its_brightness_and_only_its_own():
     exposure = ExposureCompensation(ExposureConfig(lr=0.02, lr_final=0.002), _frames("a", "b"), 200, "cpu", 1e-15)
     render = torch.rand(8, 8, 3) * 0.5 + 0.2

@@ -18,12 +18,22 @@ from liquidgs.data.dnerf import read_dnerf
 from liquidgs.data.nerfies import read_nerfies
 from liquidgs.data.scene import DataConfig, SceneDataset
 from liquidgs.data.validate import decode_image
-from liquidgs.errors import DataError
+from liquidgs.errors import ConfigError, DataError
 
 READERS = {"dnerf": read_dnerf, "nerfies": read_nerfies}
 CAPTURE_FORMATS = ("nerfies",)
 """Formats whose cameras were estimated from real footage (Nerfies, HyperNeRF, NeRF-DS, and what
 `data video` / `data images` write). D-NeRF's frames are rendered, its cameras exact."""
+
+
+CAPTURE_SWITCH = ("auto", "on", "off")
+"""The choices of a training setting that is on for captures by default (for_captures)."""
+
+
+def check_capture_switch(setting: str, choice: str) -> None:
+    """ConfigError naming `setting` unless `choice` is one of CAPTURE_SWITCH."""
+    if choice not in CAPTURE_SWITCH:
+        raise ConfigError(f"{setting} must be one of {', '.join(CAPTURE_SWITCH)}, got {choice!r}")
 
 
 def for_captures(choice: str, data_format: str | None) -> bool:

@@ -25,14 +25,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Literal
 
 import torch
 
-from liquidgs.atomic import write_json_atomic
 from liquidgs.cameras import Camera
-from liquidgs.data.loading import detect_format, for_captures
+from liquidgs.data.loading import check_capture_switch, detect_format, for_captures
 from liquidgs.data.scene import DataConfig
 from liquidgs.errors import ConfigError, DataError, LiquidGSError
 from liquidgs.eval.metrics import ssim
@@ -41,8 +39,6 @@ from liquidgs.train.exposure import expose
 from liquidgs.train.frame_corrections import FrameCorrections
 from liquidgs.train.model import Deformed
 from liquidgs.train.schedules import log_linear_lr
-
-REFINE_CHOICES = ("auto", "on", "off")
 
 
 @dataclass
@@ -74,8 +70,7 @@ class CameraRefineConfig:
     log-linearly to 1/100 of it over the steps."""
 
     def __post_init__(self) -> None:
-        if self.refine not in REFINE_CHOICES:
-            raise ConfigError(f"cameras.refine must be one of {', '.join(REFINE_CHOICES)}, got {self.refine!r}")
+        check_capture_switch("cameras.refine", self.refine)
         for name in ("start", "align_steps"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 0:
@@ -278,9 +273,6 @@ class CameraRefinement(FrameCorrections):
             **recovery,
             "frames": frames,
         }
-
-    def write(self, path: Path, iteration: int) -> None:
-        write_json_atomic(path, self.report(iteration))
 
 
 # ---------------------------------------------------------------------- aligned evaluation

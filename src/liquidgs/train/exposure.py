@@ -17,18 +17,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Literal
 
 import torch
 
-from liquidgs.atomic import write_json_atomic
-from liquidgs.data.loading import for_captures
+from liquidgs.data.loading import check_capture_switch, for_captures
 from liquidgs.errors import ConfigError, LiquidGSError
 from liquidgs.train.frame_corrections import FrameCorrections
 from liquidgs.train.schedules import log_linear_lr
-
-APPLY_CHOICES = ("auto", "on", "off")
 
 
 @dataclass
@@ -46,8 +42,7 @@ class ExposureConfig:
     """A gain or offset past this (in units of full brightness) ran away: training stops naming the frame."""
 
     def __post_init__(self) -> None:
-        if self.apply not in APPLY_CHOICES:
-            raise ConfigError(f"exposure.apply must be one of {', '.join(APPLY_CHOICES)}, got {self.apply!r}")
+        check_capture_switch("exposure.apply", self.apply)
         for name in ("lr", "lr_final", "max_change"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
@@ -120,6 +115,3 @@ class ExposureCompensation(FrameCorrections):
             "largest_offset": round(float(offsets.abs().max()), 5) if len(frames) else 0.0,
             "frames": frames,
         }
-
-    def write(self, path: Path, iteration: int) -> None:
-        write_json_atomic(path, self.report(iteration))

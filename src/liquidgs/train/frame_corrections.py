@@ -3,16 +3,19 @@ training frame, zero at the start (the frame as given), in one Adam, and how a c
 
 from __future__ import annotations
 
+import abc
 from pathlib import Path
 
 import torch
 
+from liquidgs.atomic import write_json_atomic
 from liquidgs.errors import LiquidGSError
 
 
-class FrameCorrections:
+class FrameCorrections(abc.ABC):
     """Subclasses name their two tensors (KEYS, also their checkpoint keys), what the correction is
-    called (WHAT), what it does to a frame (VERB) and the flag that turns it off (OFF_FLAG)."""
+    called (WHAT), what it does to a frame (VERB) and the flag that turns it off (OFF_FLAG), and
+    give report(iteration), the JSON the run folder keeps of them."""
 
     KEYS: tuple[str, str]
     WHAT: str
@@ -43,3 +46,10 @@ class FrameCorrections:
             for key in self.KEYS:
                 getattr(self, key).copy_(saved[key])
         self.optimizer.load_state_dict(saved["optimizer"])
+
+    @abc.abstractmethod
+    def report(self, iteration: int) -> dict:
+        """The JSON the run folder keeps of the corrections at this iteration."""
+
+    def write(self, path: Path, iteration: int) -> None:
+        write_json_atomic(path, self.report(iteration))

@@ -33,12 +33,11 @@ import numpy as np
 import torch
 from scipy.spatial import cKDTree
 
-from liquidgs.data.loading import for_captures
+from liquidgs.data.loading import check_capture_switch, for_captures
 from liquidgs.errors import ConfigError
 from liquidgs.fields.registry import field_type
 from liquidgs.render.projection import quat_to_rotmat
 
-APPLY_CHOICES = ("auto", "on", "off")
 LOCAL_FIELD_WEIGHT = 0.5
 """Each neighbour term's weight, unless set, for a field registered with local_deformation."""
 
@@ -72,8 +71,7 @@ class MotionRegConfig:
         return tuple(default if w is None else float(w) for w in (self.rigidity, self.isometry))
 
     def __post_init__(self) -> None:
-        if self.apply not in APPLY_CHOICES:
-            raise ConfigError(f"motion.apply must be one of {', '.join(APPLY_CHOICES)}, got {self.apply!r}")
+        check_capture_switch("motion.apply", self.apply)
         for name in ("neighbours", "anchors", "knn_every"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
