@@ -205,3 +205,30 @@ def test_generated_bad_integer_settings(world, tmp_path, capsys, flag, value):
     argv = ["train", "--data", str(world["scene"]), "--out", str(out), *TINY, flag, str(value)]
     assert_one_line_exit_2(argv, capsys)
     assert not out.exists()
+
+
+@pytest.mark.parametrize("config, setting, positive", [
+    ("perturb", "pose_rot_deg", False),
+    ("cameras", "rotation_lr", True),
+    ("motion", "rigidity", False),
+    ("exposure", "max_change", True),
+])  # fmt: skip
+@pytest.mark.parametrize("value", [True, float("nan"), float("inf"), -1.0, 0.0, "1"])
+def test_every_capture_weight_and_rate_refuses_what_is_not_a_number_in_range(config, setting, positive, value):
+    """One rule for every such setting (errors.check_number): a bool, nan, inf, a negative number,
+    zero where the setting divides or scales, or text is one line naming the setting."""
+    from liquidgs.data.perturb import PerturbConfig
+    from liquidgs.errors import ConfigError
+    from liquidgs.train.camera_opt import CameraRefineConfig
+    from liquidgs.train.exposure import ExposureConfig
+    from liquidgs.train.motion_reg import MotionRegConfig
+
+    cls = {"perturb": PerturbConfig, "cameras": CameraRefineConfig, "motion": MotionRegConfig,
+           "exposure": ExposureConfig}[config]  # fmt: skip
+    if value == 0.0 and not positive:
+        assert getattr(cls(**{setting: value}), setting) == 0.0  # zero is a valid weight or noise level
+        return
+    name = f"{config}.{setting if config == 'motion' else setting.replace('_', '-')}"
+    with pytest.raises(ConfigError) as refused:
+        cls(**{setting: value})
+    assert str(refused.value) == f"{name} must be a finite number {'> 0' if positive else '>= 0'}, got {value!r}"

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 
@@ -21,6 +22,20 @@ class DataError(LiquidGSError):
         self.field = field
         where = f"{self.path}" + (f": field '{field}'" if field else "")
         super().__init__(f"{where}: {message}")
+
+
+def check_number(setting: str, value, *, positive: bool = False) -> None:
+    """ConfigError naming `setting` unless `value` is a finite number >= 0 (> 0 where `positive`);
+    true and false are not numbers here, though Python counts them as 1 and 0."""
+    is_number = isinstance(value, (int, float)) and not isinstance(value, bool)
+    if not (is_number and math.isfinite(value) and (value > 0 if positive else value >= 0)):
+        raise ConfigError(f"{setting} must be a finite number {'> 0' if positive else '>= 0'}, got {value!r}")
+
+
+def check_integer(setting: str, value, minimum: int) -> None:
+    """ConfigError naming `setting` unless `value` is an integer >= `minimum` (not true or false)."""
+    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
+        raise ConfigError(f"{setting} must be an integer >= {minimum}, got {value!r}")
 
 
 def one_line(text: str) -> str:

@@ -17,7 +17,7 @@ import torch
 
 from liquidgs.cameras import Camera, camera_centre
 from liquidgs.data.scene import Frame, SceneDataset
-from liquidgs.errors import ConfigError
+from liquidgs.errors import ConfigError, check_number
 
 # Random stream of each perturbation (the second word of its numpy seed).
 _STREAMS = {"time_jitter": 1, "pose_rot_deg": 2, "pose_trans": 3, "image_noise": 4, "exposure": 5}
@@ -63,9 +63,7 @@ class PerturbConfig:
 
     def __post_init__(self) -> None:  # checked when built, as every config
         for name in ("time_jitter", "pose_rot_deg", "pose_trans", "image_noise", "exposure"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
-                raise ConfigError(f"perturb.{name.replace('_', '-')} must be a finite number >= 0, got {value!r}")
+            check_number(f"perturb.{name.replace('_', '-')}", getattr(self, name))
         keep = self.keep_frames
         if keep is not None and (isinstance(keep, bool) or not isinstance(keep, int) or keep < 1):
             raise ConfigError(f"perturb.keep-frames must be an integer >= 1 (omit it to keep all), got {keep!r}")

@@ -12,12 +12,11 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import math
 import typing
 from dataclasses import dataclass
 from typing import Any, Literal
 
-from liquidgs.errors import ConfigError
+from liquidgs.errors import ConfigError, check_number
 from liquidgs.fields.presets import FAMILY_SIZES, PRESET_NAMES, PRESETS
 from liquidgs.fields.registry import field_type, install_options_check
 
@@ -166,10 +165,8 @@ class FieldConfig(FieldOptions):
         }
 
     def _validate(self, values: dict) -> None:
-        lam = self.base_lambda
-        if not math.isfinite(lam) or lam < 0:
-            raise ConfigError(f"field: lambda must be a finite number >= 0, got {lam}")
-        if lam != 0 and field_type(self.name).default_lambda is None:
+        check_number("field: lambda", self.base_lambda)
+        if self.base_lambda != 0 and field_type(self.name).default_lambda is None:
             raise ConfigError(f"field '{self.name}' is deterministic: lambda must be 0 (use 'sde')")
         if self.name != "sde" and (self.noise, self.lambda_schedule, self.adaptive_lambda) != (
             "gate",
@@ -182,9 +179,8 @@ class FieldConfig(FieldOptions):
         for key, owner in FIELD_ONLY_OPTIONS.items():
             if getattr(self, key) is not None and self.name != owner:
                 raise ConfigError(f"{key} applies to the '{owner}' field only, not to '{self.name}'")
-        scale = self.grid_lr_scale
-        if scale is not None and not (math.isfinite(scale) and scale > 0):
-            raise ConfigError(f"field: grid_lr_scale must be a finite number > 0, got {scale}")
+        if self.grid_lr_scale is not None:
+            check_number("field: grid_lr_scale", self.grid_lr_scale, positive=True)
         for key in ("xyz_freqs", "time_freqs", "timenet_width", "timenet_out"):
             if key in values and values[key] < 0:
                 raise ConfigError(f"field: {key} must be >= 0, got {values[key]}")
@@ -206,8 +202,7 @@ class FieldConfig(FieldOptions):
             raise ConfigError(f"field: lambda_floor must be in (0, 1], got {self.lambda_floor}")
         if not 0.0 < self.solver_dt <= 1.0:
             raise ConfigError(f"field: solver_dt must be in (0, 1], got {self.solver_dt}")
-        if not (math.isfinite(self.ltc_leak) and self.ltc_leak >= 0):
-            raise ConfigError(f"field: ltc_leak must be a finite number >= 0, got {self.ltc_leak}")
+        check_number("field: ltc_leak", self.ltc_leak)
         if self.ltc_leak > 0 and self.noise == "gate":
             raise ConfigError("field: ltc_leak applies to the hidden-state noise sites ('ou', 'solver') only")
 

@@ -25,14 +25,13 @@ As in 4DGaussians:
 from __future__ import annotations
 
 import dataclasses
-import math
 from dataclasses import dataclass
 
 import torch
 from torch import nn
 from torch.nn import functional as F
 
-from liquidgs.errors import ConfigError, LiquidGSError
+from liquidgs.errors import ConfigError, LiquidGSError, check_number
 from liquidgs.fields.base import DeformationField, Deltas, ParamGroup, linear_flops, stacked_linear
 from liquidgs.fields.config import FieldConfig
 from liquidgs.fields.registry import register as register_field
@@ -81,11 +80,8 @@ class HexPlaneConfig:
         if not self.multires or min(self.multires) < 1:
             raise ConfigError(f"hexplane: multires must be one or more integers >= 1, got {self.multires}")
         for key in ("space_smoothness_weight", "time_smoothness_weight", "time_l1_weight"):
-            value = getattr(self, key)
-            if not (math.isfinite(value) and value >= 0):
-                raise ConfigError(f"hexplane: {key} must be a finite number >= 0, got {value}")
-        if not (math.isfinite(self.grid_lr_scale) and self.grid_lr_scale > 0):
-            raise ConfigError(f"hexplane: grid_lr_scale must be a finite number > 0, got {self.grid_lr_scale}")
+            check_number(f"hexplane: {key}", getattr(self, key))
+        check_number("hexplane: grid_lr_scale", self.grid_lr_scale, positive=True)
         object.__setattr__(self, "multires", tuple(self.multires))
 
     @classmethod

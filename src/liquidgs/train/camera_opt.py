@@ -23,7 +23,6 @@ exponentially decaying learning rate); the parametrisation and code are this pro
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Literal
 
@@ -32,7 +31,7 @@ import torch
 from liquidgs.cameras import Camera
 from liquidgs.data.loading import check_capture_switch, detect_format, for_captures
 from liquidgs.data.scene import DataConfig
-from liquidgs.errors import ConfigError, DataError, LiquidGSError
+from liquidgs.errors import ConfigError, DataError, LiquidGSError, check_integer, check_number
 from liquidgs.eval.metrics import ssim
 from liquidgs.eval.poses import pose_recovery
 from liquidgs.train.exposure import expose
@@ -72,17 +71,13 @@ class CameraRefineConfig:
     def __post_init__(self) -> None:
         check_capture_switch("cameras.refine", self.refine)
         for name in ("start", "align_steps"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < 0:
-                raise ConfigError(f"cameras.{name.replace('_', '-')} must be an integer >= 0, got {value!r}")
+            check_integer(f"cameras.{name.replace('_', '-')}", getattr(self, name), 0)
         steps = self.lr_steps
         if steps is not None and (isinstance(steps, bool) or not isinstance(steps, int) or steps < 1):
             raise ConfigError(f"cameras.lr-steps must be an integer >= 1 or null, got {steps!r}")
         for name in ("rotation_lr", "rotation_lr_final", "translation_lr", "translation_lr_final", "align_lr",
                      "max_rotation_deg", "max_translation"):  # fmt: skip
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
-                raise ConfigError(f"cameras.{name.replace('_', '-')} must be a finite number > 0, got {value!r}")
+            check_number(f"cameras.{name.replace('_', '-')}", getattr(self, name), positive=True)
 
 
 def refines(cfg: CameraRefineConfig, data_format: str | None) -> bool:

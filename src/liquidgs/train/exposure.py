@@ -15,14 +15,13 @@ no network.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Literal
 
 import torch
 
 from liquidgs.data.loading import check_capture_switch, for_captures
-from liquidgs.errors import ConfigError, LiquidGSError
+from liquidgs.errors import LiquidGSError, check_number
 from liquidgs.train.frame_corrections import FrameCorrections
 from liquidgs.train.schedules import log_linear_lr
 
@@ -44,9 +43,7 @@ class ExposureConfig:
     def __post_init__(self) -> None:
         check_capture_switch("exposure.apply", self.apply)
         for name in ("lr", "lr_final", "max_change"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
-                raise ConfigError(f"exposure.{name.replace('_', '-')} must be a finite number > 0, got {value!r}")
+            check_number(f"exposure.{name.replace('_', '-')}", getattr(self, name), positive=True)
 
 
 def compensates(cfg: ExposureConfig, data_format: str | None) -> bool:

@@ -25,7 +25,6 @@ were added or removed; the neighbour table is checkpointed so a resumed run cont
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Literal
 
@@ -34,7 +33,7 @@ import torch
 from scipy.spatial import cKDTree
 
 from liquidgs.data.loading import check_capture_switch, for_captures
-from liquidgs.errors import ConfigError
+from liquidgs.errors import ConfigError, check_integer, check_number
 from liquidgs.fields.registry import field_type
 from liquidgs.render.projection import quat_to_rotmat
 
@@ -73,17 +72,12 @@ class MotionRegConfig:
     def __post_init__(self) -> None:
         check_capture_switch("motion.apply", self.apply)
         for name in ("neighbours", "anchors", "knn_every"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise ConfigError(f"motion.{name.replace('_', '-')} must be an integer >= 1, got {value!r}")
+            check_integer(f"motion.{name.replace('_', '-')}", getattr(self, name), 1)
         if not isinstance(self.fixed_sizes, bool):
             raise ConfigError(f"motion.fixed-sizes must be true or false, got {self.fixed_sizes!r}")
         for name in ("rigidity", "isometry"):
-            value = getattr(self, name)
-            if value is None:
-                continue
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
-                raise ConfigError(f"motion.{name} must be a finite number >= 0, got {value!r}")
+            if getattr(self, name) is not None:
+                check_number(f"motion.{name}", getattr(self, name))
 
 
 def motion_applies(cfg: MotionRegConfig, data_format: str | None, field: str) -> bool:
