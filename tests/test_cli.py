@@ -58,3 +58,25 @@ def test_bench_train_times_every_phase_of_real_steps(capsys, tmp_path):
     assert all(phases[name] > 0 for name in ("field_forward", "field_backward", "raster_forward", "raster_backward"))
     assert sum(phases.values()) == pytest.approx(record["ms_per_iteration"], rel=0.5)
     assert record["torch_threads"] >= 1 and record["machine"]
+
+
+def test_bench_train_takes_train_settings_for_the_timed_run(capsys):
+    """A setting's cost is two bench runs on one commit: train's flags reach the trainer and the record."""
+    args = ["bench", "train", "--json", "--size", "32", "--from-step", "3", "--steps", "2",
+            "--init-points", "150", "--densify.start", "50", "--cameras.refine", "on"]  # fmt: skip
+    assert cli(args) == 0
+    record = json.loads(capsys.readouterr().out)
+    assert record["settings"] == {"init_points": 150, "densify.start": 50, "cameras.refine": "on"}
+    assert record["n_gaussians"] == {"min": 150, "median": 150, "max": 150}  # nothing densified before step 50
+
+
+@pytest.mark.parametrize("flag, message", [
+    (["--iterations", "9"], "--iterations is the benchmark's to set"),
+    (["--eval.start", "9"], "--eval.start is the benchmark's to set"),
+    (["--cameras.refine", "maybe"], "--cameras.refine: unknown refine 'maybe'"),
+    (["--no-such-setting", "1"], "unrecognized arguments: --no-such-setting"),
+])  # fmt: skip
+def test_bench_train_refuses_settings_it_owns_or_does_not_know(capsys, flag, message):
+    assert cli(["bench", "train", "--size", "32", *flag]) == 2
+    err = capsys.readouterr().err
+    assert message in err and len(err.strip().splitlines()) == 1

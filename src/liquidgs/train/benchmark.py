@@ -4,7 +4,9 @@ The real trainer runs --from-step untimed steps (so densification has grown the 
 trained scene's count), then --steps timed ones; each phase (train/phases.py) and the whole
 step are reported as medians over the timed steps, with the Gaussian count, the backend the
 rasteriser used, the machine and the thread count. The built-in puppet scene at 128 px is the
-default; --data takes a D-NeRF or Nerfies folder (with --downscale).
+default; --data takes a D-NeRF or Nerfies folder (with --downscale). Any other flag of `liquidgs
+train` sets that setting of the timed run (e.g. `--cameras.refine off`, `--motion.rigidity 0`), so a
+setting's cost is two runs on one commit; the settings given are in the record.
 """
 
 from __future__ import annotations
@@ -24,15 +26,31 @@ from liquidgs.errors import ConfigError
 from liquidgs.fields.config import PRESET_NAMES
 from liquidgs.render import BACKENDS
 from liquidgs.render.benchmark import machine_description
-from liquidgs.settings import ArgumentParser, with_settings
-from liquidgs.train.config import preset_config
+from liquidgs.settings import ArgumentParser, parse_flag_settings, to_dict_value, with_settings
+from liquidgs.train.config import TrainConfig, preset_config
 from liquidgs.train.model import deform
 from liquidgs.train.phases import PHASES, PhaseClock
 from liquidgs.train.trainer import Trainer
 
+# Settings the benchmark itself decides: how many steps run, where, and that none evaluates.
+_OWN_SETTINGS = ("iterations", "out", "resume", "eval.start")
+
+
+class _BenchParser(ArgumentParser):
+    """The benchmark's own options; the flags left over are `liquidgs train`'s, as `args.settings`."""
+
+    def parse_args(self, args=None, namespace=None):
+        known, rest = self.parse_known_args(args, namespace)
+        known.settings = parse_flag_settings(TrainConfig, rest, self.prog)
+        taken = [key for key in known.settings if key in _OWN_SETTINGS]
+        if taken:
+            raise ConfigError(f"{self.prog}: --{taken[0]} is the benchmark's to set (--from-step and --steps)")
+        return known
+
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = ArgumentParser(prog="liquidgs bench train", description=__doc__.splitlines()[0])
+    parser = _BenchParser(prog="liquidgs bench train", description=__doc__.splitlines()[0],
+                          epilog="Any other flag of `liquidgs train` sets that setting of the timed run.")
     parser.add_argument("--json", action="store_true", help="print one JSON object (default: a table)")
     parser.add_argument("--data", type=Path, help=f"scene folder (default: the built-in {DEFAULT_SYNTHETIC_SCENE})")
     parser.add_argument("--size", type=int, default=128, help="built-in scene's image size")
@@ -62,7 +80,8 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(record), flush=True)
     else:
-        print(f"{record['scene']} {record['resolution'][0]}x{record['resolution'][1]}, {record['field']}, "
+        given = "".join(f", {key}={value}" for key, value in record["settings"].items())
+        print(f"{record['scene']} {record['resolution'][0]}x{record['resolution'][1]}, {record['field']}{given}, "
               f"{record['backend']} backend, {record['n_gaussians']['median']} Gaussians: "
               f"{record['ms_per_iteration']} ms per iteration")  # fmt: skip
         for phase, ms in record["phases_ms"].items():
@@ -77,7 +96,7 @@ def run(args: argparse.Namespace) -> int:
 def measure(args: argparse.Namespace, data: Path, run_dir: Path) -> dict:
     iterations = args.from_step + args.steps
     cfg = with_settings(preset_config(args.preset, DataConfig(path=data, downscale=args.downscale)), {
-        "field": args.field, "seed": args.seed, "device": args.device, "backend": args.backend,
+        **args.settings, "field": args.field, "seed": args.seed, "device": args.device, "backend": args.backend,
         "iterations": iterations, "eval.start": iterations + 1,  # no evaluation inside the timed steps
     }, "bench train")  # fmt: skip
     run_dir.mkdir(parents=True)
@@ -100,6 +119,7 @@ def measure(args: argparse.Namespace, data: Path, run_dir: Path) -> dict:
         "resolution": [frame.camera.width, frame.camera.height],
         "preset": args.preset,
         "field": args.field,
+        "settings": {key: to_dict_value(value) for key, value in args.settings.items()},
         "backend": _backend_used(trainer, frame),
         "timed_steps": [args.from_step + 1, cfg.iterations],
         "n_gaussians": {"min": min(counts), "median": int(statistics.median(counts)), "max": max(counts)},
