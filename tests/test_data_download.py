@@ -355,6 +355,9 @@ def test_the_benchmark_spec_trains_every_field_on_clips_of_the_set_with_their_qu
         for setting, value in grid.overrides.items():
             assert f"--{setting.replace('_', '-')} {value:g}" in printed, (clip, setting, printed)
     assert {g.scenes[0] for g in spec.grids} == set(registered)
+    # Two seeds of every moving clip: ten (clip, seed) pairs for the verdict rule, and the static
+    # model's seed spread (the rule's floor) measured on each of them.
+    assert all(list(g.seeds) == [0, 1] for g in spec.grids if CLIPS[g.scenes[0]].moving)
 
 
 def test_the_other_weights_benchmark_differs_from_the_benchmark_only_in_the_regularisers():
