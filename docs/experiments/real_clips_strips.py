@@ -3,11 +3,11 @@ CfC | HexPlane, each run rendered from the test camera as given (<clip>-given.pn
 camera aligned to that run's frozen scene as the aligned scores are (<clip>-aligned.png; `liquidgs
 eval`'s alignment, camera_opt.aligned_render).
 
-    python docs/experiments/real_clips_strips.py EXPERIMENT_DIR OUT_DIR
+    python docs/experiments/real_clips_strips.py EXPERIMENT_DIR OUT_DIR [SEED]
 
 EXPERIMENT_DIR is `liquidgs experiment run docs/experiments/real-clips.yml`'s folder; OUT_DIR also gets
-<clip>.txt (each row's view and time). Runs of seed 0; a field with no finished run of it is a grey
-column.
+<clip>.txt (each row's view and time). Runs of SEED (default 0) in every column; a field with no
+finished run of it is a grey column.
 The pictures are made from the clips, whose licences forbid putting them in this repository.
 """
 
@@ -26,15 +26,15 @@ from liquidgs.train.model import render_frame
 from liquidgs.train.run import load_run, load_run_dataset
 
 COLUMNS = ("static", "mlp", "cfc", "hexplane")
-PICTURED_SEED = 0
+DEFAULT_SEED = 0
 GAP = 2
 
 
-def finished_run(scene_dir: Path, field: str) -> Path | None:
-    """The field's finished run of seed 0 under the scene (a results.json marks it done): a clip with
+def finished_run(scene_dir: Path, field: str, seed: int) -> Path | None:
+    """The field's finished run of `seed` under the scene (a results.json marks it done): a clip with
     several seeds is pictured with the same seed in every column."""
     runs = sorted(p.parent for p in (scene_dir / field).glob("*/results.json")
-                  if json.loads(p.read_text()).get("seed") == PICTURED_SEED)  # fmt: skip
+                  if json.loads(p.read_text()).get("seed") == seed)  # fmt: skip
     return runs[-1] if runs else None
 
 
@@ -50,8 +50,8 @@ def renderers(run, dataset, background) -> dict:
     return {"given": lambda frame: run.render(frame.camera, frame.time, background).rgb, "aligned": aligned}
 
 
-def strips(scene_dir: Path) -> tuple[dict[str, np.ndarray], list[str]]:
-    runs = {field: finished_run(scene_dir, field) for field in COLUMNS}
+def strips(scene_dir: Path, seed: int) -> tuple[dict[str, np.ndarray], list[str]]:
+    runs = {field: finished_run(scene_dir, field, seed) for field in COLUMNS}
     loaded = {field: load_run(run, "cpu") for field, run in runs.items() if run is not None}
     if not loaded:
         raise SystemExit(f"{scene_dir}: no finished run")
@@ -80,12 +80,12 @@ def strips(scene_dir: Path) -> tuple[dict[str, np.ndarray], list[str]]:
     return pictures, notes
 
 
-def main(experiment: Path, out: Path) -> int:
+def main(experiment: Path, out: Path, seed: int = DEFAULT_SEED) -> int:
     out.mkdir(parents=True, exist_ok=True)
     for scene_dir in sorted((experiment / "real-clips").iterdir()):
         if not scene_dir.is_dir():
             continue
-        pictures, notes = strips(scene_dir)
+        pictures, notes = strips(scene_dir, seed)
         for cameras, picture in pictures.items():
             write_png(out / f"{scene_dir.name}-{cameras}.png", picture)
         header = f"columns: ground truth | {' | '.join(COLUMNS)} (-given: test cameras as given; -aligned: aligned)"
@@ -95,6 +95,6 @@ def main(experiment: Path, out: Path) -> int:
 
 
 if __name__ == "__main__":
-    if len(sys.argv) != 3:
-        raise SystemExit("usage: python docs/experiments/real_clips_strips.py EXPERIMENT_DIR OUT_DIR")
-    sys.exit(main(Path(sys.argv[1]), Path(sys.argv[2])))
+    if len(sys.argv) not in (3, 4) or (len(sys.argv) == 4 and not sys.argv[3].isdigit()):
+        raise SystemExit("usage: python docs/experiments/real_clips_strips.py EXPERIMENT_DIR OUT_DIR [SEED]")
+    sys.exit(main(Path(sys.argv[1]), Path(sys.argv[2]), *map(int, sys.argv[3:])))
