@@ -243,6 +243,66 @@ def test_runs_without_a_checkpoint_are_reported_not_fatal(tmp_path):
     assert "| hook |" in text.split("## Margin over the static model")[1]
 
 
+def test_runs_that_refine_add_their_aligned_and_subject_scores_in_columns_of_their_own(tmp_path):
+    """Three scenes x 3 seeds of static and MLP runs that recorded final_aligned (results.json), two
+    of them also `eval --mask`'s masked_aligned (eval.json; the third has no masks, as a clip where
+    nothing moves): the section gives the margin on each, its own floor (the static model's spread
+    of that score) and the verdict over the scene-seed runs that have the score, whatever the
+    renders could not give."""
+    directory, data = tmp_path / "exp", tmp_path / "data"
+    data.mkdir()
+    subject_gain = {"a": [1.0, 1.2, 0.9], "b": [1.1, 0.8, 1.0]}
+    aligned_gain = {"a": [0.4, -0.3, 0.2], "b": [-0.2, 0.5, -0.3], "c": [0.5, 0.6, 0.7]}
+    runs = []
+    for scene in ("a", "b", "c"):
+        for field in ("static", "mlp"):
+            for seed in (0, 1, 2):
+                run_dir = f"clips/{scene}/{field}/s{seed}"
+                runs.append(RunEntry("clips", scene, field, 0.0, seed, "tiny", str(data), run_dir, None))
+                cfg = preset_config("tiny", data)
+                cfg.field, cfg.seed = field, seed
+                save_yaml(cfg, directory / run_dir / "config.yml")
+                static = 20.0 + 0.05 * (-1) ** seed
+                gain = field == "mlp"
+                aligned = static + 3 + (aligned_gain[scene][seed] if gain else 0)
+                subject = static - 4 + (subject_gain.get(scene, [0] * 3)[seed] if gain else 0)
+                score = {"psnr": static, "ssim": 0.9, "lpips": None, "lpips_unavailable": "test"}
+                results = {"final": score, "best_of": score, "final_aligned": {"psnr": aligned, "ssim": 0.9},
+                           "fps": 1.0, "num_gaussians": 1, "field_parameters": 0, "field_flops_per_gaussian": 0,
+                           "train_seconds": 1.0, "peak_memory_mb": 1.0}  # fmt: skip
+                (directory / run_dir / "results.json").write_text(json.dumps(results))
+                if scene == "c":
+                    continue  # no masks
+                region = {"psnr": subject, "ssim": 0.8, "share": 0.125}
+                masked = {"inside": region, "outside": {**region, "share": 0.875}}
+                (directory / run_dir / "eval.json").write_text(json.dumps({"masked_aligned": masked}))
+    write_manifest(Experiment({"name": "refined"}, str(data), directory, tuple(runs)))
+    md, tex = [], []
+    margin_section(collect(directory), md, tex, device="cpu")
+    text = "\n".join(md)
+    lines = text.splitlines()
+    header = next(line for line in lines if line.startswith("| scene |"))
+    assert "| subject share |" in header and "| static aligned PSNR | static subject PSNR |" in header
+    assert "D-3DGS (MLP) - static, aligned | D-3DGS (MLP) - static, subject |" in header
+    assert next(line for line in lines if line.startswith("| a |")).startswith("| a | 12.5% |")
+    floor = 2 * statistics.stdev([20.05, 19.95, 20.05])  # the static model's spread, the same on every score
+    sentence = next(line for line in lines if line.startswith("- clips, D-3DGS (MLP) minus static"))
+    mean, low, high = t_interval([m for scene in "ab" for m in subject_gain[scene]])
+    assert low > floor
+    assert (f"inside the masks (eval --mask) with test cameras aligned +0.97 (b) to +1.03 dB (a); per scene "
+            f"{TOO_FEW} on every scene; over all 6 scene-seed runs +1.00 dB, t-interval [{low:+.2f}, {high:+.2f}]: "
+            "gain") in sentence  # fmt: skip
+    mean, low, high = t_interval([m for scene in "abc" for m in aligned_gain[scene]])
+    assert low < floor
+    assert (f"whole image with test cameras aligned +0.00 (b) to +0.60 dB (c); per scene {TOO_FEW} on every scene; "
+            f"over all 9 scene-seed runs {mean:+.2f} dB, t-interval [{low:+.2f}, {high:+.2f}]: tie") in sentence  # fmt: skip
+    mean_row = next(line for line in lines if line.startswith("| mean |")).split(" | ")
+    assert mean_row[1] == "-" and mean_row[-1] == "+1.00 ± 0.05 |"  # the subject's mean over the scenes with masks
+    assert next(line for line in lines if line.startswith("| c |")).startswith("| c | - |")
+    assert f"inside the masks (eval --mask) with test cameras aligned {floor:.3f} dB" in text
+    assert "could not be re-rendered" in text  # no checkpoints: the rendered regions are missing, said so
+
+
 # ----------------------------------------------------------------------------- the spec and a real run
 def test_margins_spec_trains_static_and_two_fields_over_three_seeds(tmp_path):
     spec = load_spec("margins")

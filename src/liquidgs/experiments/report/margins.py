@@ -8,6 +8,9 @@ For every scene with static runs: each field's PSNR minus the static model's, pa
   scene has it; it does not depend on any model, but it includes the parts that do not move.
 Whole-image PSNR is results.json's final evaluation (mean of per-view PSNRs); region PSNRs pool
 the squared errors over the region (eval.regions), from 8-bit renders of the final checkpoint.
+Runs that refine cameras add two scores they recorded, each its own column, never mixed with the
+above: the whole image with the test cameras aligned (results.json's final_aligned) and the moving
+subject (`liquidgs eval --mask`'s inside score, test cameras aligned: eval.json's masked_aligned).
 Cells are mean +- sample std over the seeds both runs finished. A margin is called a gain or a loss
 by the rule of every verdict in the reports (significance.py): the clusters are the (scene, seed)
 pairs, a call needs MIN_CLUSTERS of them and their t-interval wholly beyond the ties rule's
@@ -46,8 +49,16 @@ from liquidgs.media import to_uint8
 from liquidgs.train.run import load_run, load_run_dataset
 
 BASELINE = "static"
-REGIONS = ("whole", "foreground", "moving")
-REGION_TEXT = {"whole": "whole image", "foreground": "foreground (alpha > 0)", "moving": "moving pixels"}
+RENDERED = ("foreground", "moving")
+"""Regions scored here from renders of the final checkpoint."""
+RECORDED = ("aligned", "subject")
+"""Scores the run recorded with its test cameras aligned (RunRecord.second_scores)."""
+REGIONS = ("whole", *RENDERED, *RECORDED)
+SHARED = ("foreground", "moving", "subject")
+"""Regions that cover part of the image: the table gives their share of the pixels."""
+REGION_TEXT = {"whole": "whole image", "foreground": "foreground (alpha > 0)", "moving": "moving pixels",
+               "aligned": "whole image with test cameras aligned",
+               "subject": "inside the masks (eval --mask) with test cameras aligned"}  # fmt: skip
 VERDICT_WORDS = {"helps": "gain", "hurts": "loss", "tie": "tie", TOO_FEW: TOO_FEW}
 """significance's verdicts of a field minus static, in the words of this section."""
 CHECK_TOLERANCE_DB = 0.01
@@ -136,11 +147,11 @@ def collect_scores(collection: Collection, device: str) -> tuple[list[RunScores]
         if data_key not in regions:
             try:
                 regions[data_key] = scene_regions(run, names.get(key))
-                shares[key] = {region: regions[data_key].share(region) for region in REGIONS}
+                shares.setdefault(key, {}).update({region: regions[data_key].share(region) for region in RENDERED})
             except LiquidGSError as err:
                 regions[data_key] = err
         whole = run.evaluation("final")["psnr"]
-        scores, rendered_whole = dict.fromkeys(REGIONS[1:]), whole
+        scores, rendered_whole = dict.fromkeys(RENDERED), whole
         try:
             if isinstance(regions[data_key], LiquidGSError):
                 raise regions[data_key]
@@ -150,7 +161,12 @@ def collect_scores(collection: Collection, device: str) -> tuple[list[RunScores]
         if abs(rendered_whole - whole) > CHECK_TOLERANCE_DB:
             notes.append(f"{run.entry.name}: re-rendered whole-image PSNR {rendered_whole:.3f} dB, "
                          f"results.json {whole:.3f} dB")  # fmt: skip
-        out.append(RunScores(*key, run.entry.field, run.entry.seed, {"whole": whole, **scores}))
+        aligned, _, masked_aligned = run.second_scores()
+        recorded = {"aligned": aligned["psnr"] if aligned else None,
+                    "subject": masked_aligned["inside"]["psnr"] if masked_aligned else None}  # fmt: skip
+        if masked_aligned:
+            shares.setdefault(key, {})["subject"] = masked_aligned["inside"]["share"]
+        out.append(RunScores(*key, run.entry.field, run.entry.seed, {"whole": whole, **scores, **recorded}))
     return out, shares, notes
 
 
@@ -242,12 +258,18 @@ def verdict(difference: PairedDifference) -> str:
     return VERDICT_WORDS[difference.verdict]
 
 
+def scenes_scored(by_scene: dict[str, SceneMargins], region: str) -> dict[str, SceneMargins]:
+    """The scenes whose static runs have a score on `region` (a clip without masks has no subject
+    score): the scenes a dataset's mean and verdict on that region are over."""
+    return {scene: m for scene, m in by_scene.items() if region in m.static}
+
+
 def margin_sentences(
     dataset: str, by_scene: dict[str, SceneMargins], fields: list[str], floors: dict[str, float], complete: bool
 ) -> list[str]:
     """Per field and region (the regions of `floors`, each with its ties floor, margin_floor): the
     range of the scene margins, each scene's verdict over its seeds and, when every scene of the
-    dataset is there, the verdict over all (scene, seed) clusters."""
+    dataset is there, the verdict over all (scene, seed) clusters of the scenes scored on the region."""
     lines = []
     for field in fields:
         parts = []
@@ -268,8 +290,9 @@ def margin_sentences(
             if len(cells) == 1:
                 span = f"{cells[low].mean:+.2f} dB"
             text = f"{REGION_TEXT[region]} {span}; per scene {tally}"
-            if complete and len(cells) == len(by_scene) > 1:
-                every = margin_difference(list(by_scene.values()), field, region, floor)
+            scored = scenes_scored(by_scene, region)
+            if complete and len(cells) == len(scored) > 1:
+                every = margin_difference(list(scored.values()), field, region, floor)
                 text += (f"; over all {every.clusters} scene-seed runs {every.mean:+.2f} dB, "
                          f"t-interval {every.interval_text(2)}: {verdict(every)}")  # fmt: skip
             parts.append(text)
@@ -294,7 +317,10 @@ def margin_section(collection: Collection, md: list[str], tex: list[str], device
         "final checkpoint: **moving** = pixels whose ground truth changes between neighbouring frames from the "
         "same camera (exact; built-in synthetic scenes only, as real captures never see one camera at two "
         "times); **foreground** = pixels with alpha > 0 in the ground truth (model-independent, but it includes "
-        "the parts that do not move). Cells: mean ± sample std over seeds. A margin is a gain (or a loss) when "
+        "the parts that do not move). Runs that refine cameras add what they recorded with the test cameras "
+        "aligned, in columns of their own: **aligned** = the whole image (results.json's final_aligned), "
+        "**subject** = inside the per-view masks of `liquidgs eval --mask` (eval.json's masked_aligned; "
+        "its share: of the test pixels). Cells: mean ± sample std over seeds. A margin is a gain (or a loss) when "
         f"the {CONFIDENCE:.0%} Student t-interval of its mean over the (scene, seed) runs lies wholly above "
         f"(below) the ties rule's {TIE_SIGMAS:g} sigma, sigma the static model's run-to-run PSNR spread; else a "
         f"tie; under {MIN_CLUSTERS} runs it is {TOO_FEW} (the seeds of one scene alone rarely are enough).",
@@ -308,22 +334,22 @@ def margin_section(collection: Collection, md: list[str], tex: list[str], device
             continue
         fields = sorted({f for m in by_scene.values() for f, _ in m.margins}, key=field_names().index)
         regions = [r for r in REGIONS if any(r in m.static for m in by_scene.values())]
-        header = ["scene", *(f"{r} share" for r in regions if r != "whole")]
+        header = ["scene", *(f"{r} share" for r in regions if r in SHARED)]
         header += [f"static {r} PSNR" for r in regions]
         header += [f"{field_label(f)} - static, {r}" for f in fields for r in regions]
         table = PlainTable(header)
         for scene, m in by_scene.items():
             known = shares.get((dataset, scene), {})
-            share = [f"{100 * known[r]:.1f}%" if known.get(r) is not None else "-" for r in regions if r != "whole"]
+            share = [f"{100 * known[r]:.1f}%" if known.get(r) is not None else "-" for r in regions if r in SHARED]
             values = [cell(m.static.get(r)) for r in regions]
             values += [cell(m.margins.get((f, r)), signed=True) for f in fields for r in regions]
             table.add(scene, scene, share + values)
         complete = len(by_scene) == len(collection.scenes(dataset))
         if len(by_scene) > 1 and complete:
-            every = list(by_scene.values())
-            values = [cell(dataset_static(every, r)) for r in regions]
-            values += [cell(dataset_margin(every, f, r), signed=True) for f in fields for r in regions]
-            table.add(MEAN, MEAN, ["-" for r in regions if r != "whole"] + values)
+            every = {r: list(scenes_scored(by_scene, r).values()) for r in regions}
+            values = [cell(dataset_static(every[r], r)) for r in regions]
+            values += [cell(dataset_margin(every[r], f, r), signed=True) for f in fields for r in regions]
+            table.add(MEAN, MEAN, ["-" for r in regions if r in SHARED] + values)
         caption = (f"{dataset}: margin of each field over the static model (dB), final evaluation; mean ± std over "
                    "seeds; Mean row: mean of the scene means, spread over the per-seed means.")  # fmt: skip
         md += [f"**{caption}**", "", table.to_markdown()]
