@@ -4,7 +4,7 @@
 # 1. `liquidgs data download real-clips DIR/clips`: the 8 clips, each checked against its recorded
 #    size and SHA-256, with DIR/clips/clips.json naming each source and licence (CC BY-NC and
 #    CC BY-NC-SA: keep them out of any repository);
-# 2. `liquidgs data video` on each clip, as the benchmark registered them: 40 frames, longest side
+# 2. `liquidgs data video` on each clip, as the benchmark registered them: 80 frames (every frame of a shorter clip), longest side
 #    640, one COLMAP thread (a clip COLMAP refuses is reported and left out: the spec's runs of it
 #    then fail alone);
 # 3. `liquidgs experiment run docs/experiments/real-clips.yml`: static, MLP, CfC and HexPlane with the
@@ -36,7 +36,7 @@ mkdir -p "$out/scenes" "$out/logs"
 for video in "$out"/clips/*.mp4; do
     clip=$(basename "$video" .mp4)
     [ -d "$out/scenes/$clip" ] && continue
-    if "${liquidgs[@]}" data video "$video" --out "$out/scenes/$clip" --max-size 640 --frames 40 --threads 1 \
+    if "${liquidgs[@]}" data video "$video" --out "$out/scenes/$clip" --max-size 640 --frames 80 --threads 1 \
         > "$out/logs/video-$clip.log" 2>&1; then
         echo "$clip: $(grep '^done:' "$out/logs/video-$clip.log")"
     else

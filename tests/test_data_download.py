@@ -272,7 +272,7 @@ if args[:2] == ["data", "video"]:  # COLMAP's part, played: one clip refused, th
         print("liquidgs data video: error: COLMAP could not start a model from any two of the 40 frames")
         sys.exit(2)
     pathlib.Path(args[args.index("--out") + 1]).mkdir()
-    print("done: 40/40 frames registered, mean reprojection error 0.30 px, 7755 points")
+    print("done: 80/80 frames registered, mean reprojection error 0.30 px, 7755 points")
 if args[:2] == ["experiment", "run"]:  # one finished run of the cat, one unfinished
     runs = pathlib.Path(args[args.index("--out") + 1]) / "real-clips" / "cat"
     for field, done in (("mlp", True), ("cfc", False)):
@@ -301,7 +301,7 @@ def test_the_rebuild_script_downloads_registers_each_clip_and_runs_the_spec(serv
     assert videos == [str(bench / "clips" / f"{name}.mp4") for name in ("apple", "cat", "refused")]
     for call in calls[1:4]:
         clip = Path(call[2]).stem
-        assert call[3:] == ["--out", str(bench / "scenes" / clip), "--max-size", "640", "--frames", "40",
+        assert call[3:] == ["--out", str(bench / "scenes" / clip), "--max-size", "640", "--frames", "80",
                             "--threads", "1"]  # fmt: skip
     specs = script.parents[1] / "docs" / "experiments"
     scenes, masks = str(bench / "scenes"), str(bench / "masks" / "cat")
@@ -321,7 +321,7 @@ def test_the_rebuild_script_downloads_registers_each_clip_and_runs_the_spec(serv
             mask = np.asarray(Image.open(bench / "masks" / clip / f"{view}.png"))
             assert mask.shape == (entry["size"][1], entry["size"][0]) and mask.sum() == 255 * (x1 - x0) * (y1 - y0)
             assert mask[y0, x0] == mask[y1 - 1, x1 - 1] == 255
-    assert "apple: done: 40/40 frames registered" in run.stdout
+    assert "apple: done: 80/80 frames registered" in run.stdout
     assert "refused: data video refused it: liquidgs data video: error: COLMAP could not start" in run.stderr
     assert sorted(p.name for p in (bench / "scenes").iterdir()) == ["apple", "cat"]
     again = subprocess.run(["bash", str(script), str(bench)], env=env, capture_output=True, text=True)
@@ -330,6 +330,25 @@ def test_the_rebuild_script_downloads_registers_each_clip_and_runs_the_spec(serv
     assert [call[:2] for call in calls_again] == [["data", "video"]] + [["experiment", "run"]] * 2 + \
         [["eval", "--run"]] * 2 + [["experiment", "report"]] * 2  # fmt: skip
     assert calls_again[0][2] == str(bench / "clips" / "refused.mp4")  # the refused clip is tried again
+
+
+def test_the_subject_boxes_are_drawn_on_the_test_views_the_rebuild_script_registers():
+    """real-clips-boxes.json names, for each moving clip, exactly the test views that `data video
+    --frames N` (N from scripts/real_clips.sh) holds out of a clip of that many frames, at the size the
+    spec trains at: boxes drawn for another registration would score nothing or the wrong frames."""
+    from liquidgs.data.capture import CaptureSettings, held_out_views
+    from liquidgs.data.video import select_evenly
+
+    root = Path(__file__).parents[1]
+    frames = int(re.search(r"--frames (\d+)", (root / "scripts" / "real_clips.sh").read_text()).group(1))
+    boxes = json.loads((root / "docs" / "experiments" / "real-clips-boxes.json").read_text())["clips"]
+    spec = load_spec(str(root / "docs" / "experiments" / "real-clips.yml"))
+    downscale = {g.scenes[0]: g.overrides["downscale"] for g in spec.grids}
+    assert set(boxes) == {name for name, clip in CLIPS.items() if clip.moving and name in downscale}
+    for clip, entry in boxes.items():
+        ids = [f"{n:06d}" for n in select_evenly(entry["clip_frames"], frames)]
+        assert list(entry["boxes"]) == held_out_views(ids, CaptureSettings().holdout_every), clip
+        assert entry["downscale"] == downscale[clip], clip
 
 
 def test_the_rebuild_script_wants_one_folder(tmp_path):
@@ -341,12 +360,12 @@ def test_the_rebuild_script_wants_one_folder(tmp_path):
 
 def test_the_benchmark_spec_trains_every_field_on_clips_of_the_set_with_their_quick_look():
     """docs/experiments/real-clips.yml: static / MLP / CfC / HexPlane with the quick look that
-    `data video` prints for the clip's registered size (scripts/real_clips.sh's 640 px, 40 frames)."""
+    `data video` prints for the clip's registered size (scripts/real_clips.sh's 640 px, 80 frames)."""
     from liquidgs.commands.data import quick_look_commands
 
     spec = load_spec(str(Path(__file__).parents[1] / "docs" / "experiments" / "real-clips.yml"))
-    registered = {"apple": (632, 352), "cat": (348, 456), "lady-running": (652, 360), "backpack": (364, 476),
-                  "teddy": (352, 460), "pillow": (364, 476)}
+    registered = {"apple": (632, 352), "cat": (368, 484), "lady-running": (644, 360), "backpack": (364, 472),
+                  "teddy": (352, 464), "pillow": (364, 476)}
     for grid in spec.grids:
         assert grid.fields == ("static", "mlp", "cfc", "hexplane") and grid.preset == "tiny"
         (clip,) = grid.scenes
@@ -355,9 +374,9 @@ def test_the_benchmark_spec_trains_every_field_on_clips_of_the_set_with_their_qu
         for setting, value in grid.overrides.items():
             assert f"--{setting.replace('_', '-')} {value:g}" in printed, (clip, setting, printed)
     assert {g.scenes[0] for g in spec.grids} == set(registered)
-    # Two seeds of every moving clip: ten (clip, seed) pairs for the verdict rule, and the static
-    # model's seed spread (the rule's floor) measured on each of them.
-    assert all(list(g.seeds) == [0, 1] for g in spec.grids if CLIPS[g.scenes[0]].moving)
+    # Two seeds of every clip: ten (clip, seed) pairs of moving clips for the verdict rule, the static
+    # model's seed spread (the rule's floor) measured on each of them, and the still clip's bound twice.
+    assert all(list(g.seeds) == [0, 1] for g in spec.grids)
 
 
 def test_the_other_weights_benchmark_differs_from_the_benchmark_only_in_the_regularisers():

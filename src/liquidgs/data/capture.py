@@ -78,6 +78,11 @@ class CaptureSettings:
     """Write the frames as decoded, with COLMAP's k1 in the camera files (trained as if pinhole)."""
 
 
+def held_out_views(ids: list[str], holdout_every: int) -> list[str]:
+    """The registered frames held out as test views: every `holdout_every`th, from the middle of the first stride."""
+    return [image_id for n, image_id in enumerate(ids) if n % holdout_every == holdout_every // 2]
+
+
 @dataclass
 class CaptureSummary:
     out: str
@@ -262,8 +267,7 @@ def _write_scene(
             os.replace(source, rgb_folder(scene, 1) / source.name)
 
     ids = [frame.id for frame in registered]
-    held_out = settings.holdout_every // 2
-    test_ids = [image_id for n, image_id in enumerate(ids) if n % settings.holdout_every == held_out]
+    test_ids = held_out_views(ids, settings.holdout_every)
     held_out_ids = set(test_ids)
     train_ids = [image_id for image_id in ids if image_id not in held_out_ids]
     if not test_ids:
@@ -297,7 +301,7 @@ def _write_scene(
     first = model.cameras[by_name[f"{registered[0].id}.png"].camera_id]
     log(
         f"writing: {len(ids)} frames ({len(train_ids)} train, {len(test_ids)} test: every "
-        f"{settings.holdout_every}th from the {held_out + 1}th), rgb/1x 2x 4x, {len(xyz)} points"
+        f"{settings.holdout_every}th from the {settings.holdout_every // 2 + 1}th), rgb/1x 2x 4x, {len(xyz)} points"
     )
     return CaptureSummary(
         out="",

@@ -319,7 +319,7 @@ def margin_section(collection: Collection, md: list[str], tex: list[str], device
         "times); **foreground** = pixels with alpha > 0 in the ground truth (model-independent, but it includes "
         "the parts that do not move). Runs that refine cameras add what they recorded with the test cameras "
         "aligned, in columns of their own: **aligned** = the whole image (results.json's final_aligned), "
-        "**subject** = inside the per-view masks of `liquidgs eval --mask` (eval.json's masked_aligned; "
+        "**subject** = inside the per-view masks of `liquidgs eval --run RUN --mask DIR` (eval.json's masked_aligned; "
         "its share: of the test pixels). Cells: mean ± sample std over seeds. A margin is a gain (or a loss) when "
         f"the {CONFIDENCE:.0%} Student t-interval of its mean over the (scene, seed) runs lies wholly above "
         f"(below) the ties rule's {TIE_SIGMAS:g} sigma, sigma the static model's run-to-run PSNR spread; else a "
