@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from liquidgs.cli import main as cli
 from liquidgs.commands.train import main as train_main
 from liquidgs.data import DataConfig, generate_synthetic, load_dataset
 from liquidgs.data.regions import foreground_region, frame_step, moving_region
@@ -45,6 +46,7 @@ from liquidgs.experiments.runner import train_command
 from liquidgs.experiments.spec import MINI_SCHEDULE, SHARED_DNERF_SCENES
 from liquidgs.train.config import preset_config, save_yaml
 from shared_data import DNERF_ROOT, require_shared
+from tiny_runs import one_line_error
 
 
 # ----------------------------------------------------------------------------- region PSNR
@@ -243,16 +245,15 @@ def test_runs_without_a_checkpoint_are_reported_not_fatal(tmp_path):
     assert "| hook |" in text.split("## Margin over the static model")[1]
 
 
-def test_runs_that_refine_add_their_aligned_and_subject_scores_in_columns_of_their_own(tmp_path):
-    """Three scenes x 3 seeds of static and MLP runs that recorded final_aligned (results.json), two
-    of them also `eval --mask`'s masked_aligned (eval.json; the third has no masks, as a clip where
-    nothing moves): the section gives the margin on each, its own floor (the static model's spread
-    of that score) and the verdict over the scene-seed runs that have the score, whatever the
-    renders could not give."""
+SUBJECT_GAIN = {"a": [1.0, 1.2, 0.9], "b": [1.1, 0.8, 1.0]}
+ALIGNED_GAIN = {"a": [0.4, -0.3, 0.2], "b": [-0.2, 0.5, -0.3], "c": [0.5, 0.6, 0.7]}
+
+
+def refined_clips(tmp_path: Path) -> Path:
+    """Scenes a, b, c x seeds 0-2 of static and MLP runs that refined cameras: results.json with
+    final_aligned, and eval.json with masked_aligned on a and b (c has no masks); no checkpoints."""
     directory, data = tmp_path / "exp", tmp_path / "data"
     data.mkdir()
-    subject_gain = {"a": [1.0, 1.2, 0.9], "b": [1.1, 0.8, 1.0]}
-    aligned_gain = {"a": [0.4, -0.3, 0.2], "b": [-0.2, 0.5, -0.3], "c": [0.5, 0.6, 0.7]}
     runs = []
     for scene in ("a", "b", "c"):
         for field in ("static", "mlp"):
@@ -264,8 +265,8 @@ def test_runs_that_refine_add_their_aligned_and_subject_scores_in_columns_of_the
                 save_yaml(cfg, directory / run_dir / "config.yml")
                 static = 20.0 + 0.05 * (-1) ** seed
                 gain = field == "mlp"
-                aligned = static + 3 + (aligned_gain[scene][seed] if gain else 0)
-                subject = static - 4 + (subject_gain.get(scene, [0] * 3)[seed] if gain else 0)
+                aligned = static + 3 + (ALIGNED_GAIN[scene][seed] if gain else 0)
+                subject = static - 4 + (SUBJECT_GAIN.get(scene, [0] * 3)[seed] if gain else 0)
                 score = {"psnr": static, "ssim": 0.9, "lpips": None, "lpips_unavailable": "test"}
                 results = {"final": score, "best_of": score, "final_aligned": {"psnr": aligned, "ssim": 0.9},
                            "fps": 1.0, "num_gaussians": 1, "field_parameters": 0, "field_flops_per_gaussian": 0,
@@ -277,6 +278,17 @@ def test_runs_that_refine_add_their_aligned_and_subject_scores_in_columns_of_the
                 masked = {"inside": region, "outside": {**region, "share": 0.875}}
                 (directory / run_dir / "eval.json").write_text(json.dumps({"masked_aligned": masked}))
     write_manifest(Experiment({"name": "refined"}, str(data), directory, tuple(runs)))
+    return directory
+
+
+def test_runs_that_refine_add_their_aligned_and_subject_scores_in_columns_of_their_own(tmp_path):
+    """Three scenes x 3 seeds of static and MLP runs that recorded final_aligned (results.json), two
+    of them also `eval --mask`'s masked_aligned (eval.json; the third has no masks, as a clip where
+    nothing moves): the section gives the margin on each, its own floor (the static model's spread
+    of that score) and the verdict over the scene-seed runs that have the score, whatever the
+    renders could not give."""
+    subject_gain, aligned_gain = SUBJECT_GAIN, ALIGNED_GAIN
+    directory = refined_clips(tmp_path)
     md, tex = [], []
     margin_section(collect(directory), md, tex, device="cpu")
     text = "\n".join(md)
@@ -304,6 +316,19 @@ def test_runs_that_refine_add_their_aligned_and_subject_scores_in_columns_of_the
     assert next(line for line in lines if line.startswith("| c |")).startswith("| c | - |")
     assert f"inside the masks (eval --mask) with test cameras aligned {floor:.3f} dB" in text
     assert "could not be re-rendered" in text  # no checkpoints: the rendered regions are missing, said so
+
+
+def test_a_malformed_eval_json_is_one_line_naming_it(tmp_path, capsys):
+    directory = refined_clips(tmp_path)
+    broken = directory / "clips" / "b" / "mlp" / "s1" / "eval.json"
+    broken.write_text(json.dumps({"masked_aligned": {"inside": {"psnr": 20.0}}}))
+    assert cli(["experiment", "report", str(directory)]) == 2
+    error = f"liquidgs experiment: error: {broken}: field 'masked_aligned"
+    assert one_line_error(capsys) == f"{error}' must be an object with inside, outside"
+    broken.write_text(json.dumps({"masked_aligned": {"inside": {"psnr": 20.0}, "outside": {"psnr": "?", "share": 1}}}))
+    assert cli(["experiment", "report", str(directory)]) == 2
+    assert one_line_error(capsys) == f"{error}.inside' must be an object with numbers psnr, share"
+    assert not (directory / "report" / "report.md").exists()
 
 
 # ----------------------------------------------------------------------------- the spec and a real run

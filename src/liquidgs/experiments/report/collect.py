@@ -82,6 +82,13 @@ class RunRecord:
                                          ("masked_aligned", masked_aligned, eval_path, regions)):  # fmt: skip
             if record is not None and not (isinstance(record, dict) and all(k in record for k in keys)):
                 raise LiquidGSError(f"{path}: field '{what}' must be an object with {', '.join(keys)}")
+        for what, record in (("masked", masked), ("masked_aligned", masked_aligned)):
+            for region in regions if record is not None else ():
+                scores = record[region]
+                if not (isinstance(scores, dict) and all(_is_number(scores.get(k)) for k in ("psnr", "share"))):
+                    raise LiquidGSError(
+                        f"{eval_path}: field '{what}.{region}' must be an object with numbers psnr, share"
+                    )
         return aligned, masked, masked_aligned
 
 
@@ -105,6 +112,10 @@ class Collection:
         experiment = dataclasses.replace(self.experiment, runs=tuple(r for r in self.experiment.runs if keep(r)))
         finished = tuple(r for r in self.finished if keep(r.entry))
         return Collection(experiment, finished, tuple(r for r in self.missing if keep(r)))
+
+
+def _is_number(value) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
 
 
 def _read_json(path: Path, what: str) -> dict:
