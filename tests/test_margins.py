@@ -287,7 +287,6 @@ def test_runs_that_refine_add_their_aligned_and_subject_scores_in_columns_of_the
     nothing moves): the section gives the margin on each, its own floor (the static model's spread
     of that score) and the verdict over the scene-seed runs that have the score, whatever the
     renders could not give."""
-    subject_gain, aligned_gain = SUBJECT_GAIN, ALIGNED_GAIN
     directory = refined_clips(tmp_path)
     md, tex = [], []
     margin_section(collect(directory), md, tex, device="cpu")
@@ -299,12 +298,12 @@ def test_runs_that_refine_add_their_aligned_and_subject_scores_in_columns_of_the
     assert next(line for line in lines if line.startswith("| a |")).startswith("| a | 12.5% |")
     floor = 2 * statistics.stdev([20.05, 19.95, 20.05])  # the static model's spread, the same on every score
     sentence = next(line for line in lines if line.startswith("- clips, D-3DGS (MLP) minus static"))
-    mean, low, high = t_interval([m for scene in "ab" for m in subject_gain[scene]])
+    mean, low, high = t_interval([m for scene in "ab" for m in SUBJECT_GAIN[scene]])
     assert low > floor
     assert (f"inside the masks (eval --mask) with test cameras aligned +0.97 (b) to +1.03 dB (a); per scene "
             f"{TOO_FEW} on every scene; over all 6 scene-seed runs +1.00 dB, t-interval [{low:+.2f}, {high:+.2f}]: "
             "gain") in sentence  # fmt: skip
-    mean, low, high = t_interval([m for scene in "abc" for m in aligned_gain[scene]])
+    mean, low, high = t_interval([m for scene in "abc" for m in ALIGNED_GAIN[scene]])
     assert low < floor
     aligned = (
         f"whole image with test cameras aligned +0.00 (b) to +0.60 dB (c); per scene {TOO_FEW} on every "
