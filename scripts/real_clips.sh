@@ -9,8 +9,8 @@
 #    then fail alone);
 # 3. `liquidgs experiment run docs/experiments/real-clips.yml`: static, MLP, CfC and HexPlane with the
 #    quick look's settings on every clip, scored with the test cameras as given and aligned (into
-#    DIR/experiment); then real-clips-other-weights.yml, each field with the other choice of motion
-#    regularisers (into DIR/experiment-other-weights);
+#    DIR/experiment); then real-clips-without-regularisers.yml, seed 0 of each field with every motion
+#    weight at 0 (into DIR/experiment-without-regularisers);
 # 4. masks of the moving subject on each test view, from the boxes drawn by eye in
 #    docs/experiments/real-clips-boxes.json, and `liquidgs eval --mask` of every finished run of a clip
 #    that has them (scores inside and outside, test cameras as given and aligned);
@@ -45,13 +45,13 @@ for video in "$out"/clips/*.mp4; do
 done
 
 "${liquidgs[@]}" experiment run "$specs/real-clips.yml" --data-root "$out/scenes" --out "$out/experiment"
-"${liquidgs[@]}" experiment run "$specs/real-clips-other-weights.yml" --data-root "$out/scenes" \
-    --out "$out/experiment-other-weights"
+"${liquidgs[@]}" experiment run "$specs/real-clips-without-regularisers.yml" --data-root "$out/scenes" \
+    --out "$out/experiment-without-regularisers"
 
 "${python[@]}" "$root/docs/experiments/real_clips_masks.py" "$out/masks"
 for masks in "$out"/masks/*/; do
     clip=$(basename "$masks")
-    for run in "$out"/experiment/*/"$clip"/*/*/ "$out"/experiment-other-weights/*/"$clip"/*/*/; do
+    for run in "$out"/experiment/*/"$clip"/*/*/ "$out"/experiment-without-regularisers/*/"$clip"/*/*/; do
         [ -f "$run/results.json" ] || continue
         log="$out/logs/eval-$clip-$(basename "$(dirname "$run")")-$(basename "$run").log"
         "${liquidgs[@]}" eval --run "${run%/}" --mask "${masks%/}" > "$log" 2>&1 \
@@ -59,4 +59,4 @@ for masks in "$out"/masks/*/; do
     done
 done
 "${liquidgs[@]}" experiment report "$out/experiment"
-"${liquidgs[@]}" experiment report "$out/experiment-other-weights"
+"${liquidgs[@]}" experiment report "$out/experiment-without-regularisers"

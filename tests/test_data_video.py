@@ -299,9 +299,9 @@ def test_a_short_training_on_the_scene_beats_the_static_model(video_scene, tmp_p
     Gaussians (no densification, so the field's cost stays small), MLP against static, camera
     refinement and exposure compensation on as for every capture, the motion regularisers off:
     the scene the pipeline made carries motion a field learns. Measured: static 26.46 dB, MLP 27.02
-    with the motion settings off; with the capture defaults (the MLP's sizes held, no regularisers
-    for it) it scores 26.52 at this length, with the regularisers at 0.5 as well 26.33: its gain here
-    is in resizing Gaussians (docs/training.md). The aligned score is
+    with the motion settings off; with the MLP's sizes held (and no motion term, as before the
+    stillness term was its default) it scored 26.52 at this length, with the neighbour regularisers
+    at 0.5 as well 26.33: its gain here is in resizing Gaussians (docs/training.md). The aligned score is
     not asserted here, so its evaluation is cut to 10 steps (tests/test_camera_opt.py holds it)."""
     out, _ = video_scene
     psnr = {}

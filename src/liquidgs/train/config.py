@@ -359,6 +359,11 @@ def identity_v2(cfg: TrainConfig) -> dict:
         d["motion"]["apply"] = "on"
         if not cfg.motion.fixed_sizes:  # the regularisers' runs made before sizes could be held
             del d["motion"]["fixed_sizes"]
+        stillness = cfg.motion.weights(cfg.field)[2]
+        if stillness:  # resolved: a run of the field's default is not taken for one of another weight
+            d["motion"]["stillness"] = stillness
+        else:  # and as before the stillness term existed
+            del d["motion"]["stillness"]
     else:
         del d["motion"]
     if compensates(cfg.exposure, data_format):  # and exposure compensation
@@ -489,8 +494,11 @@ def from_dict(raw: dict, source: Path | str = "config") -> TrainConfig:
         raw = {**raw, "cameras": {"refine": "off"}}
     if "motion" not in raw:  # stored before the motion regularisers existed: trained without them
         raw = {**raw, "motion": {"apply": "off"}}
-    elif isinstance(raw["motion"], dict) and "fixed_sizes" not in raw["motion"]:  # before sizes could be held
-        raw = {**raw, "motion": {**raw["motion"], "fixed_sizes": False}}
+    elif isinstance(raw["motion"], dict):
+        if "fixed_sizes" not in raw["motion"]:  # stored before sizes could be held
+            raw = {**raw, "motion": {**raw["motion"], "fixed_sizes": False}}
+        if "stillness" not in raw["motion"]:  # stored before the stillness term: trained without it
+            raw = {**raw, "motion": {**raw["motion"], "stillness": 0.0}}
     if "exposure" not in raw:  # stored before exposure compensation existed: trained without it
         raw = {**raw, "exposure": {"apply": "off"}}
     return settings.from_dict(TrainConfig, raw, source)

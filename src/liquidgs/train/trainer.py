@@ -148,8 +148,10 @@ class Trainer:
             if refines(cfg.cameras, self.dataset.format) else None
         )  # fmt: skip
         weights = regularisation(cfg.motion, self.dataset.format, cfg.field)
-        # Neighbour rigidity / isometry on the deformation, or None (also where both weights are 0).
-        self.motion = MotionRegulariser(cfg.motion, weights) if weights is not None else None
+        # Rigidity / isometry over neighbours and stillness on the deformation, or None (every weight 0).
+        self.motion = (
+            MotionRegulariser(cfg.motion, weights, self.strategy.scene_extent) if weights is not None else None
+        )
         self.exposure = (  # a colour correction per training frame, or None
             ExposureCompensation(cfg.exposure, self.dataset.train, cfg.iterations, self.device, cfg.optim.adam_eps)
             if compensates(cfg.exposure, self.dataset.format) else None
@@ -298,7 +300,9 @@ class Trainer:
             loss = loss + regulariser
         if self.motion is not None and use_field:
             p = self.params
-            loss = loss + self.motion.loss(step, p["means"], p["quats"], deformed.means, deformed.quats)
+            loss = loss + self.motion.loss(
+                step, p["means"], p["quats"], deformed.means, deformed.quats, deformed.scales
+            )
         if not torch.isfinite(loss):
             raise self._diverged(f"non-finite loss at iteration {step}")
         clock.mark("loss_forward")
