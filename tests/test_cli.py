@@ -1,6 +1,9 @@
 """The `liquidgs` dispatcher and the raster benchmark command."""
 
 import json
+import subprocess
+import sys
+import textwrap
 
 import pytest
 
@@ -21,6 +24,41 @@ def test_unknown_command_and_no_command_exit_2(capsys):
     assert cli([]) == 2
     assert cli(["bench"]) == 2
     assert "liquidgs bench {raster,fields,train,gpu,acceptance,bake}" in capsys.readouterr().err
+
+
+_CHILD = textwrap.dedent("""
+    import sys, types
+    from liquidgs import cli
+
+    def flood(argv):
+        for _ in range(100_000):
+            print("x" * 100)
+
+    def pipe_elsewhere(argv):
+        print("a line")
+        raise BrokenPipeError(32, "Broken pipe")
+
+    for name, main in (("flood", flood), ("pipe-elsewhere", pipe_elsewhere)):
+        sys.modules[name] = types.SimpleNamespace(main=main)
+        cli.COMMANDS[name] = (name, "")
+    sys.exit(cli.main(sys.argv[1:]))
+""")
+
+
+def test_a_reader_that_stops_early_ends_the_command_quietly():
+    # `liquidgs experiment run SPEC --dry-run | head`: the reader goes, the command stops without a word.
+    child = subprocess.Popen([sys.executable, "-c", _CHILD, "flood"], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    assert child.stdout.readline() == b"x" * 100 + b"\n"
+    child.stdout.close()
+    assert child.wait(timeout=60) == 141
+    assert child.stderr.read() == b""
+
+
+def test_a_broken_pipe_that_is_not_standard_output_is_still_an_error():
+    done = subprocess.run([sys.executable, "-c", _CHILD, "pipe-elsewhere"], capture_output=True, timeout=60)
+    assert done.returncode == 2
+    assert done.stdout == b"a line\n"
+    assert done.stderr.decode().strip() == "liquidgs pipe-elsewhere: error: a file: Broken pipe"
 
 
 def test_every_command_module_imports_and_has_main():

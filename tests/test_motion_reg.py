@@ -33,15 +33,16 @@ def _cloud(n: int = 300):
 
 def test_a_rigid_motion_costs_nothing_and_a_stretch_does():
     means, quats = _cloud()
+    sizes = torch.full_like(means, 0.01)
     reg = MotionRegulariser(MotionRegConfig(anchors=100), (0.5, 0.5, 0.0))
     turn = _half_angle_quaternion(torch.tensor([0.3, -0.2, 0.5]))
     turned = means @ quat_to_rotmat(turn[None])[0].T + torch.tensor([0.4, 0.1, -0.2])
     # Positions and Gaussians turned together: rigid, free.
-    assert reg.loss(1, means, quats, turned, _quat_multiply(turn, quats)) < 1e-5
+    assert reg.loss(1, means, quats, turned, _quat_multiply(turn, quats), sizes) < 1e-5
     # Positions turned, the Gaussians not: the offsets do not turn with their Gaussians.
-    assert reg.loss(2, means, quats, turned, quats) > 0.01
+    assert reg.loss(2, means, quats, turned, quats, sizes) > 0.01
     stretched = (means * torch.tensor([1.3, 1.0, 1.0])).requires_grad_()
-    loss = reg.loss(3, means, quats, stretched, quats)
+    loss = reg.loss(3, means, quats, stretched, quats, sizes)
     loss.backward()
     assert loss > 0.01 and stretched.grad.abs().sum() > 0
 

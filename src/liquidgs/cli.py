@@ -11,6 +11,8 @@ folder is expected, permissions) is reported with the path it names.
 from __future__ import annotations
 
 import importlib
+import os
+import select
 import sys
 
 from liquidgs.errors import LiquidGSError, one_line
@@ -42,6 +44,20 @@ def _os_error_line(err: OSError) -> str:
     return f"{where}: {err.strerror or err}"
 
 
+def _stdout_closed() -> bool:
+    """Whether the reader of standard output has gone (`liquidgs ... | head`). Then stdout is pointed
+    at /dev/null, so that Python's own flush at exit does not fail again."""
+    try:
+        poller = select.poll()
+        poller.register(sys.stdout.fileno(), select.POLLOUT)
+        gone = any(events & select.POLLERR for _, events in poller.poll(0))
+    except (OSError, ValueError, AttributeError):  # stdout closed or not a file; no poll (Windows)
+        return False
+    if gone:
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+    return gone
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if not argv or argv[0] in ("-h", "--help"):
@@ -56,6 +72,11 @@ def main(argv: list[str] | None = None) -> int:
         return int(module.main(rest) or 0)
     except LiquidGSError as err:
         print(f"liquidgs {name}: error: {one_line(str(err))}", file=sys.stderr)
+        return 2
+    except BrokenPipeError as err:
+        if _stdout_closed():  # as a shell command killed by SIGPIPE: nothing to say, status 141
+            return 141
+        print(f"liquidgs {name}: error: {one_line(_os_error_line(err))}", file=sys.stderr)
         return 2
     except OSError as err:
         print(f"liquidgs {name}: error: {one_line(_os_error_line(err))}", file=sys.stderr)

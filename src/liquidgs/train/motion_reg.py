@@ -140,9 +140,9 @@ class MotionRegulariser:
         self.table: torch.Tensor | None = None
         self.table_step = -1
 
-    def loss(self, step: int, canonical_means, canonical_quats, means, quats, sizes=None) -> torch.Tensor:
+    def loss(self, step: int, canonical_means, canonical_quats, means, quats, sizes) -> torch.Tensor:
         """The weighted terms at this step: canonical (params) and deformed Gaussians (sizes: their
-        scales, needed by the stillness term)."""
+        scales, for the stillness term)."""
         c = self.cfg
         n = canonical_means.shape[0]
         neighbours = self.rigidity > 0 or self.isometry > 0
