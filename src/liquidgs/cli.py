@@ -73,12 +73,9 @@ def main(argv: list[str] | None = None) -> int:
     except LiquidGSError as err:
         print(f"liquidgs {name}: error: {one_line(str(err))}", file=sys.stderr)
         return 2
-    except BrokenPipeError as err:
-        if _stdout_closed():  # as a shell command killed by SIGPIPE: nothing to say, status 141
-            return 141
-        print(f"liquidgs {name}: error: {one_line(_os_error_line(err))}", file=sys.stderr)
-        return 2
     except OSError as err:
+        if isinstance(err, BrokenPipeError) and _stdout_closed():  # as a shell command killed by SIGPIPE
+            return 141
         print(f"liquidgs {name}: error: {one_line(_os_error_line(err))}", file=sys.stderr)
         return 2
     except KeyboardInterrupt as err:
