@@ -18,8 +18,9 @@ from liquidgs.bake.distil import BakeSettings, distil
 from liquidgs.bake.motion import QUATERNION, align_quaternion_signs, interpolate, keyframe_times, pack_keyframe
 from liquidgs.bake.scene import BakedRun
 from liquidgs.eval.metrics import psnr
+from liquidgs.train.dataset import load_run_dataset
 from liquidgs.train.model import Deformed
-from liquidgs.train.run import load_run, load_run_dataset
+from liquidgs.train.run import load_run
 from tiny_runs import one_line_error, run_cli, snapshot
 
 

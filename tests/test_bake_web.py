@@ -22,9 +22,10 @@ from PIL import Image
 from browser import launched_chromium
 from liquidgs.eval.metrics import psnr
 from liquidgs.media import to_uint8
-from liquidgs.train.run import load_run, load_run_dataset
+from liquidgs.train.dataset import load_run_dataset
+from liquidgs.train.run import load_run
 from shared_data import require_installed
-from tiny_runs import one_line_error, run_cli
+from tiny_runs import one_line_error, rehash_baked_scene, run_cli
 
 REPO = Path(__file__).resolve().parents[1]
 ARTIFACTS = Path(os.environ.get("LIQUIDGS_TEST_ARTIFACTS", REPO / "test-artifacts")) / "web"
@@ -58,6 +59,7 @@ def baked(tiny_mlp_run, tmp_path_factory) -> Path:
         torch.rand(payload["params"]["sh0"].shape, generator=torch.Generator().manual_seed(0)) * 3 - 1.5
     )
     torch.save(payload, scene)
+    rehash_baked_scene(root / "baked")  # the folder's record of its scene.pt, as a bake of it would write
     return root / "baked"
 
 

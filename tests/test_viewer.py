@@ -83,7 +83,8 @@ def dataset_keyframe(frame, time: float) -> PathCamera:
 
 
 def test_camera_path_round_trip_and_render(run_dir, test_renders, tmp_path):
-    from liquidgs.train.run import load_run, load_run_dataset
+    from liquidgs.train.dataset import load_run_dataset
+    from liquidgs.train.run import load_run
 
     run = load_run(run_dir)
     frames = load_run_dataset(run.config).test

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import io
+import json
 from pathlib import Path
 
 import pytest
@@ -17,7 +18,7 @@ from liquidgs.cli import main as cli
 from liquidgs.commands.train import resolve_config, train
 from liquidgs.settings import to_flags
 from liquidgs.train.config import TrainConfig
-from liquidgs.train.run_folder import RunResults
+from liquidgs.train.run_folder import RunResults, file_sha256
 from liquidgs.train.trainer import Trainer
 
 # The tiny preset cut to a few seconds: 40 iterations of a few hundred Gaussians, densifying from
@@ -90,3 +91,11 @@ def snapshot(*folders: Path) -> dict[str, tuple[int, bytes] | None]:
         if folder.exists()
         for path in sorted(folder.rglob("*"))
     }
+
+
+def rehash_baked_scene(baked: Path) -> None:
+    """Record a hand-edited baked scene.pt in its baked.json, as a bake that wrote it would have."""
+    manifest_path = baked / "baked.json"
+    manifest = json.loads(manifest_path.read_text())
+    manifest["scene_sha256"] = file_sha256(baked / "scene.pt")
+    manifest_path.write_text(json.dumps(manifest))

@@ -27,8 +27,9 @@ from liquidgs.errors import ConfigError, LiquidGSError
 from liquidgs.eval.metrics import psnr, quantize_8bit
 from liquidgs.render.benchmark import machine_description
 from liquidgs.settings import ArgumentParser
+from liquidgs.train.dataset import load_run_dataset
 from liquidgs.train.model import render_frame
-from liquidgs.train.run import load_run, load_run_dataset
+from liquidgs.train.run import load_run
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -44,6 +44,7 @@ from liquidgs.gaussians.model import rgb_to_sh0
 from liquidgs.gaussians.ply import ply_data
 from liquidgs.sh import SH_C0
 from liquidgs.train.model import Deformed
+from liquidgs.train.run_folder import source_comment
 
 SPLATV_MAGIC = 0x674B
 TEXTURE_WIDTH = 4096
@@ -82,13 +83,14 @@ def frame_params(run, time: float) -> dict[str, torch.Tensor]:
 
 
 def write_plyseq(path: Path, run, frames: int) -> Path:
-    """A .zip of `frames` PLYs at evenly spaced times over [0, 1]."""
+    """A .zip of `frames` PLYs at evenly spaced times over [0, 1], each with the run's source record."""
+    comments = (source_comment(run.source()),)
 
     def write(tmp: Path) -> None:
         with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=1) as archive:
             for i in range(frames):
                 stream = io.BytesIO()
-                ply_data(frame_params(run, i / max(frames - 1, 1))).write(stream)
+                ply_data(frame_params(run, i / max(frames - 1, 1)), comments).write(stream)
                 archive.writestr(f"frame_{i:04d}.ply", stream.getvalue())
 
     return write_atomic(path, write)
@@ -166,7 +168,9 @@ def splatv_camera(camera, name: str) -> dict:
     }
 
 
-def splatv_bytes(model: SplatvModel, cameras: list[dict]) -> bytes:
+def splatv_bytes(model: SplatvModel, cameras: list[dict], source: dict | None = None) -> bytes:
+    """The file; `source` (the run's source record) goes into the splat chunk's header, whose keys
+    players other than liquidgs do not read."""
     n = model.position.shape[0]
     texheight = max(1, -(-n * WORDS_PER_GAUSSIAN // (TEXTURE_WIDTH * 4)))
     records = np.zeros(texheight * TEXTURE_WIDTH // 4, dtype=SPLATV_RECORD)
@@ -180,15 +184,15 @@ def splatv_bytes(model: SplatvModel, cameras: list[dict]) -> bytes:
     used["omega"] = model.omega.numpy()
     used["temporal"] = model.temporal.numpy()
     texture = records.tobytes()
-    header = [
-        {"type": "splat", "size": len(texture), "texwidth": TEXTURE_WIDTH, "texheight": texheight, "cameras": cameras}
-    ]
+    chunk = {"type": "splat", "size": len(texture), "texwidth": TEXTURE_WIDTH, "texheight": texheight}
+    chunk["cameras"] = cameras
+    header = [chunk if source is None else {**chunk, "source": source}]
     text = json.dumps(header).encode()
     return np.array([SPLATV_MAGIC, len(text)], dtype="<u4").tobytes() + text + texture
 
 
-def write_splatv(path: Path, model: SplatvModel, cameras: list[dict]) -> Path:
-    data = splatv_bytes(model, cameras)
+def write_splatv(path: Path, model: SplatvModel, cameras: list[dict], source: dict | None = None) -> Path:
+    data = splatv_bytes(model, cameras, source)
     return write_atomic(path, lambda tmp: tmp.write_bytes(data))
 
 

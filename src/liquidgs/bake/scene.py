@@ -2,9 +2,15 @@
 without evaluating any network.
 
     config.yml    the source run's configuration, as it was (dataset, background, backend)
+    scene.json    the source run's scene print: eval and render refuse a scene that has changed
+    cameras.json  the scene's cameras (data.cameras_file): render, view, web and splatv need no scene
     scene.pt      canonical Gaussians (the run's parameters) and the keyframes [K, N, 10]
-    baked.json    what was baked, from which run, and the measured error (BAKED_FORMAT); written
+    baked.json    what was baked, from which run (its source record: iteration, checkpoint hash,
+                  scene print), scene.pt's hash and the measured error (BAKED_FORMAT); written
                   last, it marks the folder a baked scene
+
+A reader refuses, in one line, a folder of an older format, a scene.pt that is not the one baked,
+non-finite values, and a folder whose source run is still where it was but has trained on since.
 """
 
 from __future__ import annotations
@@ -17,15 +23,23 @@ import torch
 
 from liquidgs.bake.motion import CHANNELS, POSITION, QUATERNION, SCALE, interpolate
 from liquidgs.cameras import Camera
+from liquidgs.data import SceneDataset
+from liquidgs.data.cameras_file import CAMERAS_FILE, dataset_from_cameras
 from liquidgs.errors import LiquidGSError
+from liquidgs.fields.registry import field_names
 from liquidgs.gaussians import PARAM_KEYS
 from liquidgs.gaussians.model import activate
-from liquidgs.train.config import TrainConfig, load_yaml
+from liquidgs.settings import load_yaml_file
+from liquidgs.train.config import FIELD_PACKAGE, TrainConfig, from_dict
+from liquidgs.train.dataset import load_run_dataset
 from liquidgs.train.model import Deformed, render_frame
+from liquidgs.train.run_folder import CONFIG, check_scene_print, check_source, file_sha256, source_record
 
 MANIFEST = "baked.json"
 SCENE = "scene.pt"
-BAKED_FORMAT = "liquidgs-baked/1"
+BAKED_FORMAT = "liquidgs-baked/2"
+OLDER_FORMATS = ("liquidgs-baked/1",)
+"""Baked before the folder carried its source, scene print and cameras: refused, to be baked again."""
 
 
 def is_baked(folder: Path) -> bool:
@@ -51,11 +65,25 @@ class BakedRun:
 
     @property
     def progress_label(self) -> str:
-        return f"baked scene of {self.manifest['source_run']} (iteration {self.iteration})"
+        return f"baked scene of {self.manifest['source']['run']} (iteration {self.iteration})"
 
     @property
     def device(self) -> torch.device:
         return self.params["means"].device
+
+    def source(self) -> dict:
+        """The source record of a file derived from this baked scene (its scene.pt)."""
+        return source_record(self.run_dir, self.manifest["source"]["config"], self.iteration, self.run_dir / SCENE)
+
+    def scene(self) -> SceneDataset:
+        """The scene's cameras: read from the scene folder where it is (checked against the print the
+        folder carries), else the cameras the folder carries (no images)."""
+        if not self.config.data.path.exists():
+            return dataset_from_cameras(
+                json.loads((self.run_dir / CAMERAS_FILE).read_text()), self.run_dir / CAMERAS_FILE
+            )
+        check_scene_print(self.run_dir, self.config.data.path)
+        return load_run_dataset(self.config)
 
     @torch.no_grad()
     def at_time(self, time: float) -> Deformed:
@@ -78,30 +106,70 @@ class BakedRun:
 
 
 def read_manifest(folder: Path) -> dict:
+    """baked.json, with every field a reader uses checked: anything else is one line naming it."""
     path = folder / MANIFEST
     try:
         manifest = json.loads(path.read_text())
     except (OSError, ValueError) as err:
         raise LiquidGSError(f"{path}: unreadable ({err})") from None
-    if not isinstance(manifest, dict) or manifest.get("format") != BAKED_FORMAT:
-        found = manifest.get("format") if isinstance(manifest, dict) else None
+    found = manifest.get("format") if isinstance(manifest, dict) else None
+    if found in OLDER_FORMATS:
+        raise LiquidGSError(
+            f"{path}: baked by an older liquidgs ({found}: no source record, scene print or cameras); "
+            f"bake the run again ({BAKED_FORMAT})"
+        )
+    if found != BAKED_FORMAT:
         raise LiquidGSError(f"{path}: format {found!r} is not {BAKED_FORMAT!r}")
+    for key, kind in (("sh_degree", int), ("iteration", int), ("field", str), ("source", dict), ("scene_sha256", str)):
+        if not isinstance(manifest.get(key), kind) or isinstance(manifest.get(key), bool):
+            raise LiquidGSError(
+                f"{path}: field '{key}' is missing or not {'an integer' if kind is int else kind.__name__}"
+            )
+    if not 0 <= manifest["sh_degree"] <= 3:
+        raise LiquidGSError(f"{path}: field 'sh_degree' must be 0..3, got {manifest['sh_degree']}")
     return manifest
+
+
+def load_baked_config(path: Path) -> TrainConfig:
+    """config.yml of a baked folder. A baked scene needs no field, so one whose field's package is no
+    longer installed still reads: its config is read as a static run's, with the field's name kept."""
+    raw = load_yaml_file(path, "run config")
+    if not isinstance(raw, dict) or "data" not in raw:
+        raise LiquidGSError(f"{path}: not a liquidgs run config (no 'data')")
+    name = raw.get("field")
+    raw.pop(FIELD_PACKAGE, None)
+    if isinstance(name, str) and name not in field_names():
+        raw = {**raw, "field": "static", "field_options": {}, "lambda_": None}
+    cfg = from_dict(raw, path)
+    if isinstance(name, str):
+        cfg.field = name  # the label readers print; a baked scene never builds its field
+    return cfg
 
 
 def load_baked(folder: str | Path, device: str | torch.device = "cpu") -> BakedRun:
     folder = Path(folder)
     manifest = read_manifest(folder)
-    cfg = load_yaml(folder / "config.yml")
+    scene_path = folder / SCENE
+    if not scene_path.is_file() or file_sha256(scene_path) != manifest["scene_sha256"]:
+        raise LiquidGSError(f"{scene_path}: missing, or not the scene.pt baked into this folder (its hash differs)")
+    source = manifest["source"]
+    check_source(folder / MANIFEST, source, again=f"bake it again (liquidgs bake --run {source.get('run')})")
+    if not (folder / CAMERAS_FILE).is_file():
+        raise LiquidGSError(f"{folder / CAMERAS_FILE}: missing; bake the run again")
+    cfg = load_baked_config(folder / CONFIG)
     try:
-        payload = torch.load(folder / SCENE, map_location=device, weights_only=True)
+        payload = torch.load(scene_path, map_location=device, weights_only=True)
         params = torch.nn.ParameterDict(
             {k: torch.nn.Parameter(payload["params"][k].float(), requires_grad=False) for k in PARAM_KEYS}
         )
         keyframes = payload["keyframes"].float()
-    except (OSError, RuntimeError, KeyError, TypeError) as err:
-        raise LiquidGSError(f"{folder / SCENE}: unreadable baked scene ({err})") from None
+    except Exception as err:  # noqa: BLE001 - any unpickling failure is a damaged or unsafe file
+        first = (str(err).strip().splitlines() or [""])[0][:200]
+        raise LiquidGSError(f"{scene_path}: unreadable baked scene ({type(err).__name__}: {first})") from None
     n = params["means"].shape[0]
     if keyframes.ndim != 3 or keyframes.shape[1:] != (n, CHANNELS) or keyframes.shape[0] < 1:
-        raise LiquidGSError(f"{folder / SCENE}: keyframes {tuple(keyframes.shape)} do not fit {n} Gaussians")
-    return BakedRun(folder, cfg, params, keyframes, int(manifest["sh_degree"]), int(manifest["iteration"]), manifest)
+        raise LiquidGSError(f"{scene_path}: keyframes {tuple(keyframes.shape)} do not fit {n} Gaussians")
+    bad = int((~torch.isfinite(keyframes)).sum()) + sum(int((~torch.isfinite(p)).sum()) for p in params.values())
+    if bad:
+        raise LiquidGSError(f"{scene_path}: {bad} non-finite values (NaN or infinity); bake the run again")
+    return BakedRun(folder, cfg, params, keyframes, manifest["sh_degree"], manifest["iteration"], manifest)

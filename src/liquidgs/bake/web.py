@@ -2,7 +2,8 @@
 
 index.html   the page: canvas, play / pause, time slider, camera list; drag orbits, wheel zooms
 player.js    the WebGL2 player (bake/web/player.js): no library, nothing fetched but the two below
-scene.json   Gaussian and keyframe counts, SH degree, background, the dataset's cameras
+scene.json   Gaussian and keyframe counts, SH degree, background, the dataset's cameras, and the
+             source record of the run or baked scene it plays (run_folder.provenance)
 scene.bin    little-endian: float32 low [N, 10] and span [N, 10] of each Gaussian's channels over
              time, opacities [N] (activated), SH coefficients [N, B, 3]; then the keyframes [K, N, 10]
              (bake/motion.py) as uint16 q, value = low + span * q / 65535 (error <= span / 131070:
@@ -77,6 +78,7 @@ def write_web(out: Path, run, dataset) -> Path:
         "target": interpolate(keyframes, 0.5)[:, POSITION].median(dim=0).values.tolist(),
         "duration_s": max(len(times) / LOOP_FPS, 2.0),
         "cameras": [web_camera(f) for f in frames],
+        "source": run.source(),
     }
     low, span, quantised = quantise(keyframes)
     opacities = torch.sigmoid(run.params["opacities"].detach().float().cpu())

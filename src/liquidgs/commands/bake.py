@@ -9,7 +9,10 @@ fraction of the Gaussian's largest axis, rotation error in radians. Past --max-k
 is baked anyway, with a warning naming the Gaussians and times over budget (all in baked.json).
 
 BAKED (default DIR/baked) is read by `render`, `eval`, `view` and `export` in place of a run
-folder. It is built in a hidden folder beside BAKED and renamed into place when complete.
+folder. It is built in a hidden folder beside BAKED and renamed into place when complete. It
+records the run it came from (iteration, the checkpoint's hash, the scene print) and carries the
+scene's cameras: it renders, plays and exports without the scene folder or the field's package,
+and is refused where its run has trained on since.
 """
 
 from __future__ import annotations
@@ -24,13 +27,14 @@ from rich.console import Console
 from liquidgs.atomic import write_atomic, write_json_atomic
 from liquidgs.bake.distil import BakeSettings, describe_over_budget, distil
 from liquidgs.bake.motion import CHANNELS
-from liquidgs.bake.scene import BAKED_FORMAT, MANIFEST, SCENE, is_baked, read_manifest
+from liquidgs.bake.scene import BAKED_FORMAT, MANIFEST, SCENE, is_baked
+from liquidgs.data.cameras_file import CAMERAS_FILE, cameras_record
 from liquidgs.data.capture import build_atomically, refuse_taken
 from liquidgs.errors import ConfigError, LiquidGSError
 from liquidgs.gaussians import PARAM_KEYS
 from liquidgs.settings import parse_flags
 from liquidgs.train.run import load_run
-from liquidgs.train.run_folder import CONFIG
+from liquidgs.train.run_folder import CONFIG, SCENE_PRINT, file_sha256
 
 MAX_KEYFRAMES = 1025
 
@@ -57,8 +61,7 @@ def check_args(args: BakeArgs) -> Path:
             f"got {args.min_keyframes} and {args.max_keyframes}"
         )
     if is_baked(args.run):
-        source = read_manifest(args.run).get("source_run", "the run it came from")
-        raise LiquidGSError(f"{args.run}: a baked scene, not a run; bake the run it came from ({source})")
+        raise LiquidGSError(f"{args.run}: a baked scene, not a run; bake the run it came from")
     out = args.out or args.run / "baked"
     refuse_taken(out)
     return out
@@ -69,12 +72,13 @@ def bake(args: BakeArgs, console: Console | None = None) -> dict:
     run = load_run(args.run, args.device)
     if not run.finished:
         raise LiquidGSError(f"{args.run}: {run.progress_label}; bake needs a finished run")
+    cameras = cameras_record(run.scene())  # the scene checked against the run's print first
     settings = BakeSettings(args.tolerance, args.min_keyframes, args.max_keyframes)
     distilled = distil(run, settings)
     n = run.params["means"].shape[0]
     manifest = {
         "format": BAKED_FORMAT,
-        "source_run": str(args.run.resolve()),
+        "source": run.source(),
         "field": run.config.field,
         "iteration": run.iteration,
         "sh_degree": run.sh_degree,
@@ -92,7 +96,11 @@ def bake(args: BakeArgs, console: Console | None = None) -> dict:
 
     def build(folder: Path) -> None:
         shutil.copyfile(args.run / CONFIG, folder / CONFIG)
+        if (args.run / SCENE_PRINT).is_file():
+            shutil.copyfile(args.run / SCENE_PRINT, folder / SCENE_PRINT)
+        write_json_atomic(folder / CAMERAS_FILE, cameras)
         write_atomic(folder / SCENE, lambda tmp: torch.save(payload, tmp))
+        manifest["scene_sha256"] = file_sha256(folder / SCENE)
         manifest["bytes_per_gaussian"] = (folder / SCENE).stat().st_size / n
         write_json_atomic(folder / MANIFEST, manifest)  # last: it marks the folder a baked scene
 

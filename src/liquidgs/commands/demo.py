@@ -33,7 +33,8 @@ from liquidgs.fields.registry import field_label, field_names, field_type
 from liquidgs.media import labelled, to_uint8, write_png, write_video
 from liquidgs.settings import parse_flags, to_dict
 from liquidgs.train.config import stretched_schedule
-from liquidgs.train.run import TrainedRun, load_run, load_run_dataset
+from liquidgs.train.dataset import load_run_dataset
+from liquidgs.train.run import TrainedRun, load_run
 from liquidgs.train.run_folder import read_results
 
 FRAMES = 80

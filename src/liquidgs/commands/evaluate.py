@@ -1,8 +1,10 @@
 """`liquidgs eval --run DIR`: re-evaluate a run's checkpoint on its test split.
 
 Writes DIR/eval.json (summary, labelled with the checkpoint's iteration and whether the run
-had finished) and DIR/eval_per_view.json; results.json, the training record, is left as it
-was. A run in progress may be evaluated: its record says "unfinished run".
+had finished) and DIR/eval_per_view.json, each with the source record of the checkpoint it scored
+(its iteration and content hash; `experiment report` refuses scores the run has trained past);
+results.json, the training record, is left as it was. A run in progress may be evaluated: its
+record says "unfinished run".
 
 The scores are with the test cameras as given. A run that refined its cameras or compensated
 exposure is scored a second time with each test view aligned to the frozen scene (its pose, its
@@ -27,8 +29,9 @@ from liquidgs.eval.masks import masked_scores, read_masks
 from liquidgs.eval.metrics import quantize_8bit
 from liquidgs.settings import parse_flags
 from liquidgs.train.camera_opt import aligned_render
+from liquidgs.train.dataset import load_run_dataset
 from liquidgs.train.model import render_frame
-from liquidgs.train.run import load_run, load_run_dataset
+from liquidgs.train.run import load_run
 from liquidgs.train.run_folder import EVAL, EVAL_PER_VIEW, check_scene_print, write_per_view
 
 
@@ -101,6 +104,7 @@ def evaluate_run(args: EvalArgs) -> dict:
         "scene": dataset.scene_name,
         "cameras": "as given",
         **summary,
+        "source": run.source(),
     }
     if aligned is not None:
         record["aligned"] = aligned
@@ -116,7 +120,7 @@ def evaluate_run(args: EvalArgs) -> dict:
             record["masked_aligned"] = {"masks": str(args.mask), "cameras": aligned["cameras"],
                                         **masked_scores(shown(aligned_renders), truths, masks)}  # fmt: skip
     write_json_atomic(args.run / EVAL, record)
-    write_per_view(args.run / EVAL_PER_VIEW, run.iteration, per_view)
+    write_per_view(args.run / EVAL_PER_VIEW, run.iteration, per_view, record["source"])
     return record
 
 

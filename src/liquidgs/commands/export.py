@@ -3,7 +3,9 @@
 Writes DIR/export/canonical.ply, field.pt (the field's weights and config, to evaluate it
 elsewhere), one PLY per --time with the deltas baked in, and with --sequence N a PLY
 sequence sequence/frame_0000.ply ... at N evenly spaced times (SuperSplat/brush timelines).
-DIR may be a baked scene (`liquidgs bake`; no field.pt then).
+DIR may be a baked scene (`liquidgs bake`; no field.pt then). Every file records the source
+of what it holds (the run's checkpoint iteration and hash, the scene print): in a PLY header
+comment, field.pt's "source", the splatv header, the web folder's scene.json.
 
 --format plyseq writes only sequence.zip, the --sequence N frames as one .zip of PLYs (Brush
 plays it); --format splatv writes only scene.splatv, splaTV's per-Gaussian cubic motion fitted
@@ -30,7 +32,8 @@ from liquidgs.bake.web import write_web
 from liquidgs.errors import ConfigError
 from liquidgs.gaussians import write_ply
 from liquidgs.settings import parse_flags
-from liquidgs.train.run import load_run, load_run_dataset
+from liquidgs.train.run import load_run
+from liquidgs.train.run_folder import source_comment
 
 
 @dataclass
@@ -79,17 +82,23 @@ def export_run(args: ExportArgs, console: Console | None = None) -> list[Path]:
     if args.format == "splatv":
         return [export_splatv(run, out / "scene.splatv", console)]
     if args.format == "web":
-        return [write_web(out / "web", run, load_run_dataset(run.config))]
-    written = [write_ply(out / "canonical.ply", run.params)]
+        return [write_web(out / "web", run, run.scene())]
+    source = run.source()
+    comments = (source_comment(source),)
+    written = [write_ply(out / "canonical.ply", run.params, comments)]
     if run.field is not None:  # a baked scene has no network
-        payload = {"config": dataclasses.asdict(run.config.field_config()), "state_dict": run.field.state_dict()}
+        payload = {
+            "config": dataclasses.asdict(run.config.field_config()),
+            "state_dict": run.field.state_dict(),
+            "source": source,
+        }
         written.append(write_atomic(out / "field.pt", lambda tmp: torch.save(payload, tmp)))
     for t in args.time:
-        written.append(write_ply(out / time_file_name(t), frame_params(run, t)))
+        written.append(write_ply(out / time_file_name(t), frame_params(run, t), comments))
     if args.sequence:
         times = [i / max(args.sequence - 1, 1) for i in range(args.sequence)]
         for i, t in enumerate(track(times, description="PLY sequence", console=console, disable=console is None)):
-            written.append(write_ply(out / "sequence" / f"frame_{i:04d}.ply", frame_params(run, t)))
+            written.append(write_ply(out / "sequence" / f"frame_{i:04d}.ply", frame_params(run, t), comments))
     return written
 
 
@@ -97,9 +106,9 @@ def export_splatv(run, path: Path, console: Console | None) -> Path:
     """splaTV's motion model fitted to the run (or baked scene); the dataset's cameras go along,
     test views first (the player starts at the first)."""
     model, kept = fit_splatv(run)
-    dataset = load_run_dataset(run.config)
+    dataset = run.scene()
     frames = [*dataset.test, *dataset.train]
-    written = write_splatv(path, model, [splatv_camera(f.camera, f.name) for f in frames])
+    written = write_splatv(path, model, [splatv_camera(f.camera, f.name) for f in frames], run.source())
     if console is not None:
         console.print(f"splatv: its cubic motion keeps {100 * kept:.2f}% of the field's motion (position variance)")
     return written

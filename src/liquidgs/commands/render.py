@@ -30,8 +30,7 @@ from liquidgs.errors import ConfigError
 from liquidgs.media import depth_to_uint8, to_uint8, write_png, write_video
 from liquidgs.render.camera_path import CameraPath, read_camera_path
 from liquidgs.settings import parse_flags
-from liquidgs.train.run import TrainedRun, load_run, load_run_dataset
-from liquidgs.train.run_folder import check_scene_print
+from liquidgs.train.run import TrainedRun, load_run
 
 MAX_FRAMES = 100_000
 
@@ -98,10 +97,9 @@ def render_run(args: RenderArgs, console: Console | None = None) -> dict[str, Pa
         console.print(f"[yellow]note:[/] {args.run}: {run.progress_label}")
     if args.uncertainty_samples and run.config.field != "sde":
         raise ConfigError(f"--uncertainty-samples needs a run of the 'sde' field; {args.run} used '{run.config.field}'")
-    check_scene_print(args.run, run.config.data.path)
     if args.uncertainty_samples and run.field is None:
         raise ConfigError(f"--uncertainty-samples needs the field's noise; {args.run} is a baked scene (its mean)")
-    dataset = load_run_dataset(run.config)
+    dataset = run.scene()
     frames = dataset.test or dataset.train
     if not 0 <= args.sweep_camera < len(frames):
         raise ConfigError(f"--sweep-camera {args.sweep_camera} is not a test view (0..{len(frames) - 1})")
@@ -115,7 +113,8 @@ def render_run(args: RenderArgs, console: Console | None = None) -> dict[str, Pa
     for frame in track(frames, description="test views", console=console, disable=quiet):
         result = run.render(frame.camera, frame.time, background)
         write_png(out / "test" / "render" / f"{frame.name}.png", result.rgb)
-        write_png(out / "test" / "gt" / f"{frame.name}.png", frame.image())
+        if frame.image_path.is_file():  # a baked scene away from its scene folder has cameras, no images
+            write_png(out / "test" / "gt" / f"{frame.name}.png", frame.image())
         write_png(out / "test" / "depth" / f"{frame.name}.png", depth_to_uint8(result.depth, result.alpha))
 
     fixed = frames[args.sweep_camera]

@@ -8,7 +8,7 @@ from liquidgs.gaussians.model import (
     rgb_to_sh0,
 )
 from liquidgs.gaussians.neighbors import mean_sq_dist_to_neighbors
-from liquidgs.gaussians.ply import read_ply, write_ply
+from liquidgs.gaussians.ply import read_ply, read_ply_comments, write_ply
 
 __all__ = [
     "PARAM_KEYS",
@@ -17,6 +17,7 @@ __all__ = [
     "init_random_box",
     "mean_sq_dist_to_neighbors",
     "read_ply",
+    "read_ply_comments",
     "rgb_to_sh0",
     "write_ply",
 ]

@@ -23,14 +23,15 @@ def _attribute_names(num_rest: int) -> list[str]:
     return names
 
 
-def write_ply(path: str | Path, params: dict[str, torch.Tensor]) -> Path:
-    """Write canonical (or deformed) Gaussians; the file appears atomically."""
-    ply = ply_data(params)
+def write_ply(path: str | Path, params: dict[str, torch.Tensor], comments: tuple[str, ...] = ()) -> Path:
+    """Write canonical (or deformed) Gaussians, with header `comments`; the file appears atomically."""
+    ply = ply_data(params, comments)
     return write_atomic(Path(path), lambda tmp: ply.write(str(tmp)))
 
 
-def ply_data(params: dict[str, torch.Tensor]) -> PlyData:
-    """The Gaussians as a PLY document (write it to a path or a binary stream)."""
+def ply_data(params: dict[str, torch.Tensor], comments: tuple[str, ...] = ()) -> PlyData:
+    """The Gaussians as a PLY document (write it to a path or a binary stream); `comments` go into
+    the header, where every PLY reader skips them."""
     means = params["means"].detach().float().cpu().numpy()
     n = means.shape[0]
     shN = params["shN"].detach().float().cpu()
@@ -49,7 +50,27 @@ def ply_data(params: dict[str, torch.Tensor]) -> PlyData:
     vertex = np.empty(n, dtype=[(name, "<f4") for name in names])
     for i, name in enumerate(names):
         vertex[name] = data[:, i]
-    return PlyData([PlyElement.describe(vertex, "vertex")], byte_order="<")
+    return PlyData([PlyElement.describe(vertex, "vertex")], byte_order="<", comments=list(comments))
+
+
+MAX_HEADER_BYTES = 1 << 16
+
+
+def read_ply_comments(path: str | Path) -> list[str]:
+    """The header comments of a PLY, reading the header only."""
+    path = Path(path)
+    comments = []
+    try:
+        with open(path, "rb") as file:
+            header = file.read(MAX_HEADER_BYTES)
+    except OSError as err:
+        raise DataError(path, f"unreadable ({err.strerror or err})") from None
+    for line in header.split(b"\n"):
+        if line.startswith(b"end_header"):
+            return comments
+        if line.startswith(b"comment "):
+            comments.append(line[len(b"comment ") :].decode("utf-8", "replace").rstrip("\r"))
+    raise DataError(path, f"not a readable 3DGS PLY (no end_header in its first {MAX_HEADER_BYTES} bytes)")
 
 
 def read_ply(path: str | Path, device: str | torch.device = "cpu") -> dict[str, torch.Tensor]:

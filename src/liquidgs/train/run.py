@@ -10,13 +10,22 @@ from pathlib import Path
 import torch
 
 from liquidgs.cameras import Camera
-from liquidgs.data import SceneDataset, load_dataset, perturb_dataset
+from liquidgs.data import SceneDataset
 from liquidgs.errors import ConfigError, LiquidGSError
 from liquidgs.fields import build_field
 from liquidgs.gaussians import PARAM_KEYS
-from liquidgs.train.config import TrainConfig, load_yaml
+from liquidgs.train.config import TrainConfig, config_hash, load_yaml
+from liquidgs.train.dataset import load_run_dataset
 from liquidgs.train.model import Deformed, deform, hold_sizes, render_frame
-from liquidgs.train.run_folder import CHECKPOINT, CONFIG, FAILURE, RESULTS, read_checkpoint
+from liquidgs.train.run_folder import (
+    CHECKPOINT,
+    CONFIG,
+    FAILURE,
+    RESULTS,
+    check_scene_print,
+    read_checkpoint,
+    source_record,
+)
 
 
 @dataclass
@@ -42,6 +51,15 @@ class TrainedRun:
     @property
     def device(self) -> torch.device:
         return self.params["means"].device
+
+    def source(self) -> dict:
+        """The source record of a file derived from this run's checkpoint (run_folder.provenance)."""
+        return source_record(self.run_dir, config_hash(self.config), self.iteration, self.run_dir / CHECKPOINT)
+
+    def scene(self) -> SceneDataset:
+        """The scene the run renders, refused in one line where it differs from the one it trained on."""
+        check_scene_print(self.run_dir, self.config.data.path)
+        return load_run_dataset(self.config)
 
     @torch.no_grad()
     def at_time(self, time: float) -> Deformed:
@@ -136,9 +154,3 @@ def resolve_device(name: str) -> torch.device:
     if device.type == "cuda" and not torch.cuda.is_available():
         raise ConfigError(f"device '{name}' asked for, but this torch sees no CUDA device")
     return device
-
-
-def load_run_dataset(cfg: TrainConfig, clean: SceneDataset | None = None) -> SceneDataset:
-    """The scene as this run sees it: `clean` (else read from cfg.data) with cfg.perturb applied,
-    so training, evaluation and renders of a perturbed run use the same splits."""
-    return perturb_dataset(clean if clean is not None else load_dataset(cfg.data), cfg.perturb, cfg.seed)

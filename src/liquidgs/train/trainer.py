@@ -27,11 +27,12 @@ from liquidgs.fields import build_field
 from liquidgs.gaussians import PARAM_KEYS, init_from_points, init_random_box
 from liquidgs.train.camera_opt import CameraRefinement, aligned_render, refines
 from liquidgs.train.config import TrainConfig, save_yaml
+from liquidgs.train.dataset import load_run_dataset
 from liquidgs.train.exposure import ExposureCompensation, compensates
 from liquidgs.train.model import deform, hold_sizes, render_frame
 from liquidgs.train.motion_reg import MotionRegulariser, holds_sizes, regularisation
 from liquidgs.train.phases import NoClock, PhaseClock
-from liquidgs.train.run import load_run_dataset, resolve_device
+from liquidgs.train.run import resolve_device
 from liquidgs.train.run_folder import (
     CAMERAS_REFINED,
     CHECKPOINT,

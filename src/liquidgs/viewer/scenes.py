@@ -14,9 +14,10 @@ import torch
 
 from liquidgs.cameras import Camera
 from liquidgs.errors import LiquidGSError
-from liquidgs.gaussians import activate, read_ply
+from liquidgs.gaussians import activate, read_ply, read_ply_comments
 from liquidgs.render import rasterize
-from liquidgs.train.run import TrainedRun, load_run, load_run_dataset
+from liquidgs.train.run import TrainedRun, load_run
+from liquidgs.train.run_folder import check_source, same_source, source_in_comments
 
 
 class RunScene:
@@ -25,7 +26,7 @@ class RunScene:
     def __init__(self, run: TrainedRun, label: str):
         self.run = run
         self.label = label
-        self.dataset = load_run_dataset(run.config)
+        self.dataset = run.scene()
         self.background = torch.tensor(self.dataset.background, dtype=torch.float32)
 
     @property
@@ -52,6 +53,7 @@ class PlyScene:
         self.label = path.name
         self.background = background
         files = ply_files(path)
+        check_ply_sources(files)
         self.frames = [activate(read_ply(f)) for f in files]
         bases = {f["colors"].shape[1] for f in self.frames}
         if len(bases) != 1:
@@ -69,6 +71,17 @@ class PlyScene:
             g["means"], g["quats"], g["scales"], g["opacities"], g["colors"], camera.viewmat, camera.K,
             camera.width, camera.height, sh_degree=self.sh_degree, background=self.background,
         ).rgb  # fmt: skip
+
+
+def check_ply_sources(files: list[Path]) -> None:
+    """The frames of a sequence come from one run, and that run (where it still is) has not trained
+    past them; a PLY without a source record (another tool's) is read as it is."""
+    sources = [source_in_comments(read_ply_comments(f)) for f in files]
+    for file, source in zip(files[1:], sources[1:], strict=True):
+        if not same_source(source, sources[0]):
+            raise LiquidGSError(f"{file}: from another run or checkpoint than {files[0]}; a sequence mixes two")
+    if sources[0] is not None:
+        check_source(files[0], sources[0], again="export it again")
 
 
 def ply_files(path: Path) -> list[Path]:

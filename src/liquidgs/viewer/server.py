@@ -308,7 +308,8 @@ class Viewer:
             self.uncertainty_text.content = f"heat map: black = 0, yellow = std {peak:.4f} (mean over RGB)"
             return image, {**info, "mode": "uncertainty", "peak_std": peak}
         image = to_uint8(scene.render(camera, t))
-        if snapped is not None and self.cameras and self.ground_truth.value:
+        # A baked scene away from its scene folder has its cameras, not their images.
+        if snapped is not None and self.cameras and self.ground_truth.value and snapped.image_path.is_file():
             x0, y0, box_w, box_h = box
             truth = Image.fromarray(snapped.image_uint8()).resize((box_w, box_h), Image.BILINEAR)
             image = image.copy()

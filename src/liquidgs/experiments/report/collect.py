@@ -17,7 +17,7 @@ from liquidgs.errors import LiquidGSError
 from liquidgs.experiments.plan import Experiment, RunEntry, read_manifest
 from liquidgs.fields.registry import field_label, field_names, field_type
 from liquidgs.train.config import TrainConfig, load_yaml
-from liquidgs.train.run_folder import CONFIG, EVAL, PER_VIEW, RESULTS, check_results_format
+from liquidgs.train.run_folder import CONFIG, EVAL, PER_VIEW, RESULTS, check_results_format, check_source
 
 EVALUATIONS = ("final", "best_of")
 SCORE_KEYS = ("psnr", "ssim")
@@ -75,6 +75,8 @@ class RunRecord:
         aligned = self.results.get("final_aligned") or None
         eval_path = self.folder / EVAL
         evaluation = _read_json(eval_path, EVAL) if eval_path.is_file() else {}
+        if evaluation:
+            _check_evaluated_checkpoint(eval_path, evaluation, self.results)
         masked, masked_aligned = evaluation.get("masked"), evaluation.get("masked_aligned")
         regions = ("inside", "outside")
         for what, record, path, keys in (("final_aligned", aligned, self.folder / RESULTS, ("psnr", "ssim")),
@@ -149,6 +151,22 @@ def _check_results(path: Path, results: dict) -> None:
             raise LiquidGSError(f"{path}: field '{key}' is missing or not a finite number")
 
 
+def _check_evaluated_checkpoint(path: Path, evaluation: dict, results: dict) -> None:
+    """eval.json must score the checkpoint the run holds now, not one it has trained past."""
+    if "source" in evaluation:
+        check_source(
+            path,
+            evaluation["source"],
+            folder=path.parent,
+            again=f"run `liquidgs eval --run {path.parent}` again (with its --mask)",
+        )
+    elif evaluation.get("iteration") != results.get("iterations"):  # made before eval.json had a source
+        raise LiquidGSError(
+            f"{path}: scores iteration {evaluation.get('iteration')!r}, but the run finished at iteration "
+            f"{results.get('iterations')}; run `liquidgs eval --run {path.parent}` again (with its --mask)"
+        )
+
+
 def _check_views(path: Path, per_view: dict) -> None:
     views = per_view.get("views")
     if not isinstance(views, list) or not all(
@@ -185,7 +203,9 @@ def read_run(experiment_dir: Path, entry: RunEntry) -> RunRecord | None:
     if per_view_path.is_file():
         per_view = _read_json(per_view_path, PER_VIEW)
         _check_views(per_view_path, per_view)
-    return RunRecord(entry, folder, config, results, per_view)
+    record = RunRecord(entry, folder, config, results, per_view)
+    record.second_scores()  # eval.json checked (well-formed, of the checkpoint the run holds) before any writing
+    return record
 
 
 def collect(experiment_dir: str | Path) -> Collection:

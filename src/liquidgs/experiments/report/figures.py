@@ -14,7 +14,8 @@ from liquidgs.experiments.report.aggregate import DatasetScores
 from liquidgs.experiments.report.collect import Method, RunRecord
 from liquidgs.fields.config import PAPER_LAMBDA
 from liquidgs.media import labelled, to_uint8, write_png
-from liquidgs.train.run import load_run, load_run_dataset
+from liquidgs.train.dataset import load_run_dataset
+from liquidgs.train.run import load_run
 
 QUALITATIVE_SCENES = 3
 PANEL = 192

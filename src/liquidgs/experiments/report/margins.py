@@ -46,7 +46,8 @@ from liquidgs.experiments.report.tables import PlainTable
 from liquidgs.experiments.spec import SyntheticScene
 from liquidgs.fields.registry import field_label, field_names
 from liquidgs.media import to_uint8
-from liquidgs.train.run import load_run, load_run_dataset
+from liquidgs.train.dataset import load_run_dataset
+from liquidgs.train.run import load_run
 
 BASELINE = "static"
 RENDERED = ("foreground", "moving")

@@ -10,7 +10,8 @@ experiments read. Readers import this package, never the training loop.
     cameras_refined.json  how far camera refinement moved each training camera (runs that refine)
     exposure.json     the colour correction learned for each training frame (runs that compensate)
     tensorboard/      training curves
-    eval.json, eval_per_view.json   written by `liquidgs eval`
+    eval.json, eval_per_view.json   written by `liquidgs eval`, each with the source record of the
+                      checkpoint it scored (provenance.py); a report refuses one the run has outgrown
     .liquidgs.lock    held by the one process writing the folder (lock.py)
 
 Each file is written atomically. A folder is empty, configured, unfinished, finished or foreign
@@ -34,6 +35,14 @@ from liquidgs.train.run_folder.layout import (
     stale_temporaries,
 )
 from liquidgs.train.run_folder.lock import run_folder_lock, writer_pid
+from liquidgs.train.run_folder.provenance import (
+    check_source,
+    file_sha256,
+    same_source,
+    source_comment,
+    source_in_comments,
+    source_record,
+)
 from liquidgs.train.run_folder.records import (
     CHECKPOINT_FORMAT,
     RESULTS_FORMAT,
@@ -69,11 +78,17 @@ __all__ = [
     "check_resume_progress",
     "check_run_dir",
     "check_scene_print",
+    "check_source",
+    "file_sha256",
     "read_checkpoint",
     "read_results",
     "run_directory_state",
     "run_folder_lock",
+    "same_source",
     "scene_print",
+    "source_comment",
+    "source_in_comments",
+    "source_record",
     "stale_temporaries",
     "write_checkpoint",
     "write_failure",

@@ -156,9 +156,11 @@ def read_results(run_dir: Path) -> RunResults:
     return RunResults.from_json(raw, path)
 
 
-def write_per_view(path: Path, iteration: int, views: list[dict]) -> Path:
-    """PER_VIEW (training's final evaluation) or EVAL_PER_VIEW: each view's scores at `iteration`."""
-    return write_json_atomic(path, {"iteration": iteration, "views": views})
+def write_per_view(path: Path, iteration: int, views: list[dict], source: dict | None = None) -> Path:
+    """PER_VIEW (training's final evaluation) or EVAL_PER_VIEW: each view's scores at `iteration`;
+    EVAL_PER_VIEW with the source record of the checkpoint it scored (provenance)."""
+    record = {"iteration": iteration, "views": views}
+    return write_json_atomic(path, record if source is None else {**record, "source": source})
 
 
 def write_failure(run_dir: Path, checkpoint_iteration: int | None, reason: str) -> Path:
