@@ -14,18 +14,16 @@ folder. It is built in a hidden folder beside BAKED and renamed into place when 
 
 from __future__ import annotations
 
-import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
-import torch
 from rich.console import Console
 
-from liquidgs.atomic import write_atomic, write_json_atomic
+from liquidgs.atomic import build_atomically, save_torch_atomic, write_json_atomic, write_text_atomic
 from liquidgs.bake.distil import BakeSettings, describe_over_budget, distil
 from liquidgs.bake.motion import CHANNELS
 from liquidgs.bake.scene import BAKED_FORMAT, MANIFEST, SCENE, is_baked, read_manifest
-from liquidgs.data.capture import build_atomically, refuse_taken
+from liquidgs.data.capture import refuse_taken
 from liquidgs.errors import ConfigError, LiquidGSError
 from liquidgs.gaussians import PARAM_KEYS
 from liquidgs.settings import parse_flags
@@ -90,9 +88,11 @@ def bake(args: BakeArgs, console: Console | None = None) -> dict:
         "keyframes": distilled.keyframes.contiguous(),
     }
 
+    config_text = (args.run / CONFIG).read_text()
+
     def build(folder: Path) -> None:
-        shutil.copyfile(args.run / CONFIG, folder / CONFIG)
-        write_atomic(folder / SCENE, lambda tmp: torch.save(payload, tmp))
+        write_text_atomic(folder / CONFIG, config_text)
+        save_torch_atomic(folder / SCENE, payload)
         manifest["bytes_per_gaussian"] = (folder / SCENE).stat().st_size / n
         write_json_atomic(folder / MANIFEST, manifest)  # last: it marks the folder a baked scene
 
