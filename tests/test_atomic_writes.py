@@ -269,3 +269,24 @@ def test_times_naming_one_file_write_and_count_it_once(tiny_mlp_run, tmp_path, c
     assert export(tiny_mlp_run, out, "--time", "-0.0", "0.0", "0.5", "0.5") == 0
     assert sorted(p.name for p in out.iterdir()) == ["canonical.ply", "field.pt", "time_0.0000.ply", "time_0.5000.ply"]
     assert f"wrote 4 files under {out}" in " ".join(capsys.readouterr().err.split())  # rich wraps lines
+
+
+def test_the_viewer_says_why_a_camera_path_was_not_saved(tiny_mlp_run, tmp_path, monkeypatch):
+    import numpy as np
+
+    from liquidgs.render.camera_path import PathCamera
+    from liquidgs.viewer.scenes import load_runs
+    from liquidgs.viewer.server import Viewer
+
+    path = tmp_path / "path.json"
+    viewer = Viewer(load_runs([tiny_mlp_run]), port=0, camera_path_file=path)
+    try:
+        viewer.keyframes += [PathCamera(np.eye(4), 50.0, 0.0), PathCamera(np.eye(4), 50.0, 1.0)]
+        refuse_replace(monkeypatch, "path.json", errno.EROFS)
+        assert viewer.save_camera_path(None) is None
+    finally:
+        viewer.stop()
+    assert (
+        viewer.path_text.content == f"read-only file system at {tmp_path} while writing path.json; nothing was written"
+    )
+    assert list(tmp_path.iterdir()) == []

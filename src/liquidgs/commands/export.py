@@ -2,7 +2,8 @@
 
 Writes DIR/export/canonical.ply, field.pt (the field's weights and config, to evaluate it
 elsewhere), one PLY per --time with the deltas baked in, and with --sequence N a PLY
-sequence sequence/frame_0000.ply ... at N evenly spaced times (SuperSplat/brush timelines).
+sequence sequence/frame_0000.ply ... at N evenly spaced times (SuperSplat/brush timelines), built
+beside sequence/ and renamed into place whole (an older sequence is replaced only by a complete one).
 DIR may be a baked scene (`liquidgs bake`; no field.pt then).
 
 --format plyseq writes only sequence.zip, the --sequence N frames as one .zip of PLYs (Brush
