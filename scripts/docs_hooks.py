@@ -56,7 +56,8 @@ def on_files(files, config):
 
 # The errors a user sees: liquidgs.errors.LiquidGSError and its subclasses (the CLI prints them as one line).
 USER_ERRORS = {"LiquidGSError", "ConfigError", "DataError", "RunFolderLocked", "TrainingDiverged",
-               "FieldGroupsChanged", "SolveError", "LPIPSUnavailable", "FieldContractError", "NameTaken"}  # fmt: skip
+               "FieldGroupsChanged", "SolveError", "LPIPSUnavailable", "FieldContractError", "NameTaken",
+               "WriteRefused"}  # fmt: skip
 
 
 def _template(node) -> str:

@@ -220,12 +220,10 @@ def test_bad_input_is_one_line_and_writes_nothing(case, expected, tiny_run, bake
 
 
 def test_a_failure_while_writing_leaves_no_folder(tiny_run, tmp_path, monkeypatch):
-    from liquidgs.commands import bake as bake_command
-
     def full_disk(*_args, **_kwargs):
         raise OSError(28, "No space left on device")
 
-    monkeypatch.setattr(bake_command.torch, "save", full_disk)
+    monkeypatch.setattr(torch, "save", full_disk)
     few = ["--min-keyframes", "3", "--max-keyframes", "3"]
     code, _, err = run_cli(["bake", "--run", str(tiny_run), "--out", str(tmp_path / "baked"), *few])
     assert code == 2 and "no space left" in err

@@ -328,6 +328,9 @@ def option_strings(flag: Flag) -> list[str]:
 
 def _parse_value(text: str, hint, flag: str):
     hint = _strip(hint)
+    if text == "" and Path in (typing.get_args(hint) if _is_union(hint) else (hint,)):
+        # Path("") is the current folder: an empty --out would write there, --run read there.
+        raise ConfigError(f"{flag}: an empty path; name the file or folder ('.' for the current folder)")
     if _is_union(hint):
         args = typing.get_args(hint)
         if type(None) in args and text == _NONE_TEXT:

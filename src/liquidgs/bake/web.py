@@ -13,15 +13,15 @@ scene.bin    little-endian: float32 low [N, 10] and span [N, 10] of each Gaussia
 from __future__ import annotations
 
 import json
-import shutil
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from liquidgs.atomic import build_atomically, write_atomic, write_text_atomic
 from liquidgs.bake.distil import BakeSettings, distil
 from liquidgs.bake.motion import POSITION, interpolate
-from liquidgs.data.capture import build_atomically, refuse_taken
+from liquidgs.data.capture import refuse_taken
 
 PLAYER_FILES = ("index.html", "player.js")
 PLAYER_DIR = Path(__file__).parent / "web"
@@ -87,9 +87,10 @@ def write_web(out: Path, run, dataset) -> Path:
 
     def build(folder: Path) -> None:
         for name in PLAYER_FILES:
-            shutil.copyfile(PLAYER_DIR / name, folder / name)
-        (folder / "scene.bin").write_bytes(blob)
-        (folder / "scene.json").write_text(json.dumps(meta))
+            player = (PLAYER_DIR / name).read_bytes()
+            write_atomic(folder / name, lambda tmp, data=player: tmp.write_bytes(data))
+        write_atomic(folder / "scene.bin", lambda tmp: tmp.write_bytes(blob))
+        write_text_atomic(folder / "scene.json", json.dumps(meta))
 
     build_atomically(out, build)
     return out

@@ -17,19 +17,17 @@ and is refused where its run has trained on since.
 
 from __future__ import annotations
 
-import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
-import torch
 from rich.console import Console
 
-from liquidgs.atomic import write_atomic, write_json_atomic
+from liquidgs.atomic import build_atomically, save_torch_atomic, write_json_atomic, write_text_atomic
 from liquidgs.bake.distil import BakeSettings, describe_over_budget, distil
 from liquidgs.bake.motion import CHANNELS
 from liquidgs.bake.scene import BAKED_FORMAT, MANIFEST, SCENE, is_baked
 from liquidgs.data.cameras_file import CAMERAS_FILE, cameras_record
-from liquidgs.data.capture import build_atomically, refuse_taken
+from liquidgs.data.capture import refuse_taken
 from liquidgs.errors import ConfigError, LiquidGSError
 from liquidgs.gaussians import PARAM_KEYS
 from liquidgs.settings import parse_flags
@@ -94,12 +92,15 @@ def bake(args: BakeArgs, console: Console | None = None) -> dict:
         "keyframes": distilled.keyframes.contiguous(),
     }
 
+    config_text = (args.run / CONFIG).read_text()
+    scene_print_text = (args.run / SCENE_PRINT).read_text() if (args.run / SCENE_PRINT).is_file() else None
+
     def build(folder: Path) -> None:
-        shutil.copyfile(args.run / CONFIG, folder / CONFIG)
-        if (args.run / SCENE_PRINT).is_file():
-            shutil.copyfile(args.run / SCENE_PRINT, folder / SCENE_PRINT)
+        write_text_atomic(folder / CONFIG, config_text)
+        if scene_print_text is not None:
+            write_text_atomic(folder / SCENE_PRINT, scene_print_text)
         write_json_atomic(folder / CAMERAS_FILE, cameras)
-        write_atomic(folder / SCENE, lambda tmp: torch.save(payload, tmp))
+        save_torch_atomic(folder / SCENE, payload)
         manifest["scene_sha256"] = file_sha256(folder / SCENE)
         manifest["bytes_per_gaussian"] = (folder / SCENE).stat().st_size / n
         write_json_atomic(folder / MANIFEST, manifest)  # last: it marks the folder a baked scene

@@ -2,7 +2,8 @@
 
 Writes DIR/export/canonical.ply, field.pt (the field's weights and config, to evaluate it
 elsewhere), one PLY per --time with the deltas baked in, and with --sequence N a PLY
-sequence sequence/frame_0000.ply ... at N evenly spaced times (SuperSplat/brush timelines).
+sequence sequence/frame_0000.ply ... at N evenly spaced times (SuperSplat/brush timelines), built
+beside sequence/ and renamed into place whole (an older sequence is replaced only by a complete one).
 DIR may be a baked scene (`liquidgs bake`; no field.pt then). Every file records the source
 of what it holds (the run's checkpoint iteration and hash, the scene print): in a PLY header
 comment, field.pt's "source", the splatv header, the web folder's scene.json.
@@ -18,15 +19,15 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from contextlib import closing
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
-import torch
 from rich.console import Console
 from rich.progress import track
 
-from liquidgs.atomic import write_atomic
+from liquidgs.atomic import build_atomically, save_torch_atomic
 from liquidgs.bake.formats import fit_splatv, frame_params, splatv_camera, write_plyseq, write_splatv
 from liquidgs.bake.web import write_web
 from liquidgs.errors import ConfigError
@@ -59,6 +60,7 @@ def time_file_name(time: float) -> str:
 
 
 def export_run(args: ExportArgs, console: Console | None = None) -> list[Path]:
+    """The files written, each once: times that name the same file (0.5 twice, -0.0 and 0.0) write it once."""
     names: dict[str, float] = {}
     for t in args.time:
         if not (math.isfinite(t) and 0.0 <= t <= 1.0):
@@ -92,14 +94,28 @@ def export_run(args: ExportArgs, console: Console | None = None) -> list[Path]:
             "state_dict": run.field.state_dict(),
             "source": source,
         }
-        written.append(write_atomic(out / "field.pt", lambda tmp: torch.save(payload, tmp)))
-    for t in args.time:
-        written.append(write_ply(out / time_file_name(t), frame_params(run, t), comments))
+        written.append(save_torch_atomic(out / "field.pt", payload))
+    for name, t in names.items():
+        written.append(write_ply(out / name, frame_params(run, t), comments))
     if args.sequence:
-        times = [i / max(args.sequence - 1, 1) for i in range(args.sequence)]
-        for i, t in enumerate(track(times, description="PLY sequence", console=console, disable=console is None)):
-            written.append(write_ply(out / "sequence" / f"frame_{i:04d}.ply", frame_params(run, t), comments))
+        written += export_sequence(run, out / "sequence", args.sequence, comments, console)
     return written
+
+
+def export_sequence(run, folder: Path, frames: int, comments: tuple[str, ...], console: Console | None) -> list[Path]:
+    """frame_0000.ply ... at `frames` evenly spaced times, built beside `folder` and renamed into
+    place whole: a player never finds part of a sequence, nor frames of an older one."""
+    times = [i / max(frames - 1, 1) for i in range(frames)]
+    names = [f"frame_{i:04d}.ply" for i in range(frames)]
+
+    def build(building: Path) -> None:
+        # closing: a failed frame ends the progress bar before the error line, not at the next GC.
+        with closing(track(times, description="PLY sequence", console=console, disable=console is None)) as shown:
+            for name, t in zip(names, shown):
+                write_ply(building / name, frame_params(run, t), comments)
+
+    build_atomically(folder, build, replace=True)
+    return [folder / name for name in names]
 
 
 def export_splatv(run, path: Path, console: Console | None) -> Path:

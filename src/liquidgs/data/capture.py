@@ -5,7 +5,7 @@ rasteriser is pinhole), cropped to valid pixels (see colmap.undistorters), unles
 keep_distortion asks for the frames as decoded and the lens's k1 in the camera files.
 
 Everything is built in a hidden temporary folder beside the output (.<name>.partial-*) and moved
-into place by one rename at the end (`build_atomically`, also used by `data undistort`), so a
+into place by one rename at the end (atomic.build_atomically, also used by `data undistort`), so a
 failure or an interrupt leaves no folder that looks like a scene.
 """
 
@@ -13,18 +13,15 @@ from __future__ import annotations
 
 import copy
 import os
-import secrets
 import shutil
 import time
-from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import TypeVar
 
 import numpy as np
 from PIL import Image
 
-from liquidgs.atomic import write_json_atomic
+from liquidgs.atomic import build_atomically, write_json_atomic
 from liquidgs.data.colmap import (
     Log,
     SolveOptions,
@@ -62,8 +59,6 @@ SCALES = (1, 2, 4)  # rgb/<k>x folders written
 # cameras' distance from their object, the scale the training presets are tuned for (the fields'
 # deformation and the means' learning rate are in absolute units).
 VIEWING_DISTANCE = 4.0
-
-Built = TypeVar("Built")
 
 
 @dataclass
@@ -114,23 +109,6 @@ def refuse_taken(out: Path) -> None:
     """An output folder must not exist, or be empty: a scene is never written over anything."""
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
         raise ConfigError(f"--out {out}: already exists and is not an empty folder; choose a new folder")
-
-
-def build_atomically(out: Path, build: Callable[[Path], Built]) -> Built:
-    """build(folder) in a hidden .<name>.partial-* folder beside `out`, renamed to `out` when it
-    returns; removed on any failure or interrupt. `out` must have passed refuse_taken."""
-    out.parent.mkdir(parents=True, exist_ok=True)
-    building = out.parent / f".{out.name}.partial-{secrets.token_hex(4)}"
-    building.mkdir()  # not mkdtemp: its 0700 would stay on the scene folder
-    try:
-        result = build(building)
-        if out.exists():
-            out.rmdir()  # empty, checked by refuse_taken; rename needs the name free
-        os.rename(building, out)
-    except BaseException:
-        shutil.rmtree(building, ignore_errors=True)
-        raise
-    return result
 
 
 def capture_scene(source: Path, out: Path, settings: CaptureSettings, log: Log, *, video: bool) -> CaptureSummary:

@@ -8,7 +8,7 @@ rgb/<k>x folder is undistorted; every coarser folder the scene had is made from 
 averages, so the folders agree with each other and with the camera files. Poses, times, splits,
 scene.json and points.npy are unchanged: undistortion moves pixels, not cameras.
 
-The new scene is built beside the output and renamed into place (capture.build_atomically).
+The new scene is built beside the output and renamed into place (atomic.build_atomically).
 """
 
 from __future__ import annotations
@@ -23,8 +23,8 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-from liquidgs.atomic import write_json_atomic
-from liquidgs.data.capture import build_atomically, refuse_taken
+from liquidgs.atomic import build_atomically, write_json_atomic
+from liquidgs.data.capture import refuse_taken
 from liquidgs.data.colmap import Log, Undistorter, describe_camera, import_pycolmap, undistorters
 from liquidgs.data.loading import detect_format, load_dataset
 from liquidgs.data.nerfies import (

@@ -22,6 +22,7 @@ from pathlib import Path
 
 import torch
 
+from liquidgs.atomic import write_text_atomic
 from liquidgs.cameras import DNERF_CAMERA_ANGLE_X, centred_intrinsics, focal_from_fov
 from liquidgs.errors import ConfigError
 from liquidgs.render.contract import DEPTH_ALPHA_FLOOR
@@ -257,8 +258,7 @@ def run(args: argparse.Namespace) -> int:
             | {"speedup_of_torch_backend": round(dense["total_ms"] / tiled["total_ms"], 1)}
         )
     if args.output is not None:
-        args.output.parent.mkdir(parents=True, exist_ok=True)
-        args.output.write_text(json.dumps(results, indent=1) + "\n")
+        write_text_atomic(args.output, json.dumps(results, indent=1) + "\n")
     return 0
 
 

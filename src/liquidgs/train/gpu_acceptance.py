@@ -35,6 +35,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from liquidgs.atomic import write_text_atomic
 from liquidgs.errors import ConfigError
 from liquidgs.settings import ArgumentParser
 
@@ -500,7 +501,7 @@ class Acceptance:
         env = {**os.environ, "TORCH_EXTENSIONS_DIR": str(Path(a.build_dir).resolve())}
         results.append(self.run_stage("scene", scene, limit, env=env))
         lines = summary_lines(read_records(self.out))
-        (self.out / SUMMARY).write_text("\n".join(lines) + "\n")
+        write_text_atomic(self.out / SUMMARY, "\n".join(lines) + "\n")
         print("\n".join(lines), flush=True)
         return 0 if all(results) else 1
 

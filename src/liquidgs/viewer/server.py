@@ -23,6 +23,7 @@ import viser.transforms as vtf
 from matplotlib import colormaps
 from PIL import Image
 
+from liquidgs.atomic import WriteRefused
 from liquidgs.cameras import Camera
 from liquidgs.data.scene import Frame
 from liquidgs.media import labelled, to_uint8
@@ -354,6 +355,9 @@ class Viewer:
             written = write_camera_path(
                 path, self.keyframes, width, height, float(self.path_fps.value), float(self.path_seconds.value)
             )
+        except WriteRefused as err:  # a full disk, a read-only folder: the line names the file
+            self.path_text.content = str(err)
+            return None
         except OSError as err:
             self.path_text.content = f"could not write {path}: {err.strerror or err}"
             return None

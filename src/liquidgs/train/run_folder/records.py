@@ -10,7 +10,7 @@ from pathlib import Path
 
 import torch
 
-from liquidgs.atomic import write_atomic, write_json_atomic
+from liquidgs.atomic import save_torch_atomic, write_json_atomic
 from liquidgs.errors import LiquidGSError
 from liquidgs.gaussians import PARAM_KEYS
 from liquidgs.train.run_folder.layout import CHECKPOINT, FAILURE, RESULTS
@@ -174,13 +174,7 @@ def write_checkpoint(run_dir: Path, contents: dict) -> Path:
     only, so read_checkpoint can load it safely) under this format's marker."""
     payload = {"format": CHECKPOINT_FORMAT, **contents}
 
-    def save(tmp: Path) -> None:
-        # Through a Python file object, so a full disk raises an OSError(ENOSPC) that write_atomic
-        # finds (torch's zip writer re-raises it as a RuntimeError that never mentions space).
-        with open(tmp, "wb") as file:
-            torch.save(payload, file)
-
-    return write_atomic(run_dir / CHECKPOINT, save)
+    return save_torch_atomic(run_dir / CHECKPOINT, payload)
 
 
 def read_checkpoint(path: Path) -> dict:
