@@ -1,7 +1,7 @@
-"""`liquidgs data {synth,check,download,video,images,undistort}`: generate built-in synthetic scenes,
-validate dataset folders, download the D-NeRF or NeRF-DS scenes, turn your own video or image folder
-into a scene (cameras solved by COLMAP, frames undistorted into pinhole cameras), and undistort an
-existing Nerfies-layout scene."""
+"""`liquidgs data {synth,check,download,video,images,undistort,flow}`: generate built-in synthetic
+scenes, validate dataset folders, download the D-NeRF or NeRF-DS scenes, turn your own video or image
+folder into a scene (cameras solved by COLMAP, frames undistorted into pinhole cameras, optical flow
+and motion masks), undistort an existing Nerfies-layout scene, and add optical flow to one."""
 
 from __future__ import annotations
 
@@ -11,7 +11,9 @@ from pathlib import Path
 import tyro
 
 from liquidgs.data import DataConfig, check_dataset, generate_synthetic
+from liquidgs.data.capture import training_downscale
 from liquidgs.data.colmap import Matcher, SolveOptions, import_pycolmap
+from liquidgs.data.flow import check_scene_flow, compute_scene_flow, import_cv2, scene_image_size
 from liquidgs.data.scene import Background, DataFormat, Split
 from liquidgs.errors import ConfigError
 from liquidgs.settings import parse_flags
@@ -93,6 +95,9 @@ class CaptureArgs:
     """Keep the frames as decoded and COLMAP's radial distortion k1 in the camera files (trained as if
     pinhole). By default the frames are undistorted into a pinhole camera by COLMAP's undistorter, the
     border cropped to valid pixels (and to sides divisible by 4), and the camera files carry no distortion."""
+    flow: bool = True
+    """Compute optical flow and motion masks at the quick look's scale into flow/<k>x (see `data flow`);
+    --no-flow skips it (`data flow SCENE` adds it later)."""
 
 
 @dataclass(kw_only=True)
@@ -113,6 +118,18 @@ class ImagesArgs(CaptureArgs):
 
     images: tyro.conf.Positional[Path]
     """Folder of .png/.jpg images, all the same size."""
+
+
+@dataclass(kw_only=True)
+class FlowArgs:
+    """Optical flow between neighbouring train frames and a motion mask per frame (pixels whose flow the
+    cameras' motion cannot explain) of a Nerfies-layout scene, into SCENE/flow/<k>x; a flow folder
+    already there for that scale is replaced once the new one is complete."""
+
+    scene: tyro.conf.Positional[Path]
+    """Scene folder in the Nerfies layout (what `data video` / `data images` write)."""
+    downscale: int | None = None
+    """The rgb/<k>x to compute at (default: the quick look's, the longer side at least 128 pixels)."""
 
 
 @dataclass(kw_only=True)
@@ -150,6 +167,8 @@ def check(args: CheckArgs) -> int:
     options = {f.name: getattr(args, f.name) for f in fields(CheckArgs) if f.name != "path"}
     config = DataConfig(path=args.path, cache_images=0, **options)
     print("\n".join(check_dataset(config).lines()))
+    for line in check_scene_flow(args.path):
+        print(line)
     return 0
 
 
@@ -171,7 +190,7 @@ def quick_look_commands(out: Path, size: tuple[int, int]) -> list[str]:
     (DensifyConfig.max_per_pixel) of 1, or less where 1 would allow more than QUICK_LOOK_GAUSSIANS,
     and no opacity reset; then a render of the run."""
     width, height = size
-    downscale = next(k for k in (4, 2, 1) if max(width, height) / k >= 128 or k == 1)
+    downscale = training_downscale(size)
     pixels = (width // downscale) * (height // downscale)
     per_pixel = min(1.0, int(100 * QUICK_LOOK_GAUSSIANS / pixels) / 100)
     runs = Path("outputs") / out.name / "quick"
@@ -190,6 +209,9 @@ def quick_look_commands(out: Path, size: tuple[int, int]) -> list[str]:
 
 def _capture(args: CaptureArgs, source: Path, video: bool, fps: float | None = None, frames: int | None = None) -> int:
     from liquidgs.data.capture import CaptureSettings, capture_scene
+
+    if args.flow:
+        import_cv2()  # fail before any work when it is missing
     from liquidgs.data.video import check_sampling
 
     check_sampling(fps, frames, args.max_size)
@@ -204,6 +226,7 @@ def _capture(args: CaptureArgs, source: Path, video: bool, fps: float | None = N
         mask_dir=args.mask_dynamic,
         solve=SolveOptions(matcher=args.matcher, threads=args.threads),
         keep_distortion=args.keep_distortion,
+        flow=args.flow,
     )
     summary = capture_scene(source, args.out, settings, lambda line: print(line, flush=True), video=video)
     print(
@@ -233,6 +256,21 @@ def images(args: ImagesArgs) -> int:
     return _capture(args, args.images, False)
 
 
+def flow(args: FlowArgs) -> int:
+    import_cv2()
+    if args.downscale is not None and args.downscale < 1:
+        raise ConfigError(f"--downscale must be a positive integer, got {args.downscale}")
+    downscale = args.downscale or training_downscale(scene_image_size(args.scene))
+    summary = compute_scene_flow(args.scene, downscale, lambda line: print(line, flush=True))
+    width, height = summary.size
+    print(
+        f"done: {summary.pairs} flow pairs and {summary.masks} motion masks at {width}x{height} "
+        f"({100 * summary.mean_moving_share:.1f}% of pixels moving on average), {summary.seconds:.1f} s "
+        f"-> {summary.folder}"
+    )
+    return 0
+
+
 def undistort(args: UndistortArgs) -> int:
     from liquidgs.data.undistort import undistort_scene
 
@@ -258,15 +296,16 @@ SUBCOMMANDS = {
     "video": (VideoArgs, video),
     "images": (ImagesArgs, images),
     "undistort": (UndistortArgs, undistort),
+    "flow": (FlowArgs, flow),
 }
 
 
 def main(argv: list[str]) -> int:
     if not argv or argv[0] not in SUBCOMMANDS:
-        usage = "usage: liquidgs data {synth,check,download,video,images,undistort} [--help]"
+        usage = "usage: liquidgs data {synth,check,download,video,images,undistort,flow} [--help]"
         if argv and argv[0] in ("-h", "--help"):
             print(usage)
             return 0
-        raise ConfigError(f"choose a subcommand: synth, check, download, video, images or undistort ({usage})")
+        raise ConfigError(f"choose a subcommand: synth, check, download, video, images, undistort or flow ({usage})")
     spec, run = SUBCOMMANDS[argv[0]]
     return run(parse_flags(spec, argv[1:], prog=f"liquidgs data {argv[0]}", description=spec.__doc__))

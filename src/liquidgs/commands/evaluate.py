@@ -10,7 +10,8 @@ The scores are with the test cameras as given. A run that refined its cameras or
 exposure is scored a second time with each test view aligned to the frozen scene (its pose, its
 exposure), under "aligned" (its "cameras" says how).
 --mask DIR adds PSNR / SSIM inside and outside per-view masks of the moving subject, under "masked"
-(cameras as given) and, for a run that refined its cameras, "masked_aligned" (test cameras aligned).
+(cameras as given) and, for a run that refined its cameras, "masked_aligned" (test cameras aligned);
+--mask auto takes the scene's own motion masks (`data flow`: flow/<k>x/masks at the run's scale).
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ import torch
 from rich.console import Console
 
 from liquidgs.atomic import write_json_atomic
+from liquidgs.data.flow import AUTO_MASKS, scene_motion_masks
 from liquidgs.errors import ConfigError
 from liquidgs.eval import LPIPS, LPIPSUnavailable, describe_lpips, evaluate_views
 from liquidgs.eval.masks import masked_scores, read_masks
@@ -48,7 +50,9 @@ class EvalArgs:
     device: str = "auto"
     mask: Path | None = None
     """Folder of masks of the moving subject, <view name>.png at the view's size, nonzero inside (the
-    masks `data video --mask-dynamic` takes): scores inside and outside them, with the cameras as given."""
+    masks `data video --mask-dynamic` takes): scores inside and outside them, with the cameras as given.
+    `auto`: the scene's own motion masks (flow/<k>x/masks at the run's scale, made by `data video` or
+    `data flow`), checked against the frames they were computed from."""
 
 
 def evaluate_run(args: EvalArgs) -> dict:
@@ -75,7 +79,8 @@ def evaluate_run(args: EvalArgs) -> dict:
         lpips, lpips_error = None, str(err)
     background = torch.tensor(dataset.background, dtype=torch.float32)
     views = dataset.splits[args.split]
-    masks = read_masks(args.mask, views) if args.mask is not None else None  # checked before any work
+    mask_dir = scene_motion_masks(cfg.data.path, views) if str(args.mask) == AUTO_MASKS else args.mask
+    masks = read_masks(mask_dir, views) if mask_dir is not None else None  # checked before any work
     renders, aligned_renders = [], []
     render = _keeping(lambda frame: run.render(frame.camera, frame.time, background).rgb, renders)
     summary, per_view = evaluate_views(render, views, lpips=lpips, lpips_error=lpips_error, quantize=quantize)
@@ -114,10 +119,10 @@ def evaluate_run(args: EvalArgs) -> dict:
         def shown(images):
             return [quantize_8bit(r.cpu()) for r in images] if quantize else [r.cpu() for r in images]
 
-        record["masked"] = {"masks": str(args.mask), "cameras": "as given",
+        record["masked"] = {"masks": str(mask_dir), "cameras": "as given",
                             **masked_scores(shown(renders), truths, masks)}  # fmt: skip
         if aligned is not None:  # a refined model's test cameras as given miss it by its refinement: both, labelled
-            record["masked_aligned"] = {"masks": str(args.mask), "cameras": aligned["cameras"],
+            record["masked_aligned"] = {"masks": str(mask_dir), "cameras": aligned["cameras"],
                                         **masked_scores(shown(aligned_renders), truths, masks)}  # fmt: skip
     write_json_atomic(args.run / EVAL, record)
     write_per_view(args.run / EVAL_PER_VIEW, run.iteration, per_view, record["source"])

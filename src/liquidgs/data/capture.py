@@ -30,6 +30,7 @@ from liquidgs.data.colmap import (
     solve_cameras,
     undistorters,
 )
+from liquidgs.data.flow import compute_scene_flow
 from liquidgs.data.nerfies import (
     CAMERA_FOLDER,
     DATASET_FILE,
@@ -71,6 +72,18 @@ class CaptureSettings:
     solve: SolveOptions = field(default_factory=SolveOptions)
     keep_distortion: bool = False
     """Write the frames as decoded, with COLMAP's k1 in the camera files (trained as if pinhole)."""
+    flow: bool = True
+    """Optical flow and motion masks (data.flow) at the training scale (training_downscale)."""
+
+
+TRAINING_SIDE = 128
+"""The quick look trains at the largest downscale that keeps the longer side at least this long."""
+
+
+def training_downscale(size: tuple[int, int]) -> int:
+    """The rgb/<k>x a capture of `size` (width, height at 1x) trains at in the quick look, and the
+    scale its optical flow is computed at."""
+    return next(k for k in (4, 2, 1) if max(size) / k >= TRAINING_SIDE or k == 1)
 
 
 def held_out_views(ids: list[str], holdout_every: int) -> list[str]:
@@ -122,6 +135,9 @@ def capture_scene(source: Path, out: Path, settings: CaptureSettings, log: Log, 
     def build(building: Path) -> CaptureSummary:
         summary = _build(source, building, settings, log, video=video)
         summary.out = str(out)
+        if settings.flow:
+            flow = compute_scene_flow(building, training_downscale(summary.image_size), log)
+            summary.seconds["flow"] = flow.seconds
         write_json_atomic(building / CAPTURE_FILE, asdict(summary))
         return summary
 

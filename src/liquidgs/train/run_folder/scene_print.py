@@ -3,7 +3,9 @@ resumed, re-evaluated or rendered on a scene that differs from it.
 
 The print is cheap: every file's path and size, and the bytes of the small files that hold the
 cameras, times and splits (D-NeRF's transforms_*.json, Nerfies' dataset.json and camera/*.json),
-not the images' bytes. Hidden files and folders are left out (the OS's and editors' own).
+not the images' bytes. Hidden files and folders are left out (the OS's and editors' own), and so is
+flow/ (optical flow and motion masks, derived from the frames and cameras and checked against them
+by its own flow.json: adding it to a scene leaves the runs trained on that scene valid).
 A run folder made before the print existed has none: it is read as before, unchecked.
 """
 
@@ -14,6 +16,7 @@ import json
 from pathlib import Path
 
 from liquidgs.atomic import write_json_atomic
+from liquidgs.data.flow import FLOW_FOLDER
 from liquidgs.errors import ConfigError
 from liquidgs.train.run_folder.layout import SCENE_PRINT
 
@@ -29,6 +32,8 @@ def scene_print(scene: Path) -> dict:
         for path in sorted(scene.rglob("*")):
             relative = path.relative_to(scene)
             if any(part.startswith(".") for part in relative.parts) or not path.is_file():
+                continue
+            if relative.parts[0] == FLOW_FOLDER:
                 continue
             files[relative.as_posix()] = path.stat().st_size
             if path.suffix.lower() in HASHED_SUFFIXES:

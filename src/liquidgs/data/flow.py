@@ -1,0 +1,429 @@
+"""Optical flow and motion masks of a capture: liquidgs' one owner of optical flow.
+
+For a scene in the Nerfies layout (what `data video` / `data images` write), at one image scale
+(rgb/<k>x, the training resolution):
+
+- flow between each train frame and the next train frame in time, forward and backward (OpenCV's
+  DIS, preset DIS_PRESET), with each direction's forward-backward consistency: a pixel whose flow
+  and the flow back from where it lands do not cancel (an occlusion, a failure) is inconsistent;
+- a motion mask for every frame, train and test: the textured pixels (MIN_TEXTURE) whose flow to
+  the train frames FRAME_STEP train frames before and after it (test frames never feed training:
+  their flow serves only their own mask) the cameras' motion cannot explain. Where the camera moved
+  enough for parallax to show (more than PARALLAX_PX at the scene's median depth) that is the
+  Sampson distance of the flow's end from its epipolar line; where it only turned (or stood still),
+  the distance from where the rotation's homography puts the pixel. Pixels further than
+  MOTION_THRESHOLD_PX, consistent in either direction, then cleaned (clean_mask). MoSca's
+  weight-free motion mask, with no network. What it cannot see: motion along the epipolar line
+  (a subject moving the way the camera slides), and motion on textureless surfaces.
+
+Layout, in the scene folder:
+
+    flow/<k>x/flow.json          FLOW_FORMAT: size, preset, threshold, the pairs, and the SHA-256 of
+                                 every image and camera file the flow was computed from (stale flow
+                                 is refused by `data check` and every reader)
+    flow/<k>x/pairs/<a>--<b>.npz forward (a -> b) and backward (b -> a) flow, float16 [H, W, 2] in
+                                 pixels, and forward_consistent / backward_consistent, bool [H, W]
+    flow/<k>x/masks/<id>.png     the motion mask, 255 inside (the masks `eval --mask` reads)
+
+flow/<k>x is built under a hidden name and renamed into place (atomic.build_atomically): complete or
+absent, an older one replaced only by a complete one. The flow folder
+is derived from the frames and cameras, so it is not part of a run's scene print (adding flow to a
+scene leaves the runs trained on it valid); flow.json's own hashes say when it is stale.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from liquidgs.atomic import build_atomically, write_json_atomic
+from liquidgs.cameras import Camera
+from liquidgs.data.loading import load_dataset
+from liquidgs.data.nerfies import camera_path
+from liquidgs.data.scene import DataConfig, Frame, SceneDataset
+from liquidgs.errors import DataError, LiquidGSError
+
+FLOW_FOLDER = "flow"
+FLOW_FILE = "flow.json"
+FLOW_FORMAT = "liquidgs-flow-1"
+PAIRS_FOLDER = "pairs"
+MASKS_FOLDER = "masks"
+DIS_PRESET = "medium"
+"""DIS's presets: ultrafast, fast, medium. Medium: a few milliseconds a pair at training sizes
+(about 200 x 110 for the quick look), and its error on a still background is the lowest."""
+MOTION_THRESHOLD_PX = 1.0
+"""A pixel moves where the cameras' motion misses its flow by more than this (training pixels)."""
+PARALLAX_PX = 0.5
+"""Below this parallax (focal x baseline / median depth, pixels) a pair is treated as a turn."""
+MIN_REGION_SHARE = 0.001
+"""A motion region smaller than this share of the image is speckle, not a moving subject."""
+MIN_TEXTURE = 2e-4
+"""Flow is only evidence where the image has texture: the smaller eigenvalue of the structure tensor
+(5 x 5 window, grey levels in [0, 1]) at least this. On a blank wall DIS returns a smooth guess that
+is consistent both ways and still wrong (measured on the cat clip: whole patches of its wall)."""
+FRAME_STEP = 3
+"""A frame's mask compares it with the train frames this many train frames before and after it:
+between neighbouring frames a slow subject (the cat's head) moves less than the cameras' error."""
+MIN_TRAIN_FRAMES = 2
+
+Log = Callable[[str], None]
+
+
+def import_cv2():
+    """OpenCV, or one line saying how to install it."""
+    try:
+        import cv2
+    except ImportError:
+        raise LiquidGSError(
+            "optical flow needs OpenCV: pip install opencv-python-headless (part of the colmap extra)"
+        ) from None
+    return cv2
+
+
+def optical_flow(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """DIS flow from image a to image b (uint8 RGB [H, W, 3]): float32 [H, W, 2], (dx, dy) in pixels."""
+    cv2 = import_cv2()
+    preset = {"ultrafast": 0, "fast": 1, "medium": 2}[DIS_PRESET]
+    dis = cv2.DISOpticalFlow_create(preset)
+    gray = [cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_RGB2GRAY) for image in (a, b)]
+    return dis.calc(gray[0], gray[1], None).astype(np.float32)
+
+
+def _pixel_grid(height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
+    return np.meshgrid(np.arange(width, dtype=np.float32), np.arange(height, dtype=np.float32))
+
+
+def consistent(forward: np.ndarray, backward: np.ndarray) -> np.ndarray:
+    """Where forward flow and the backward flow at its end cancel (Sundaram et al.'s test:
+    |f + b|^2 < 0.01 (|f|^2 + |b|^2) + 0.5) and the end lies inside the image: bool [H, W]."""
+    cv2 = import_cv2()
+    height, width = forward.shape[:2]
+    gx, gy = _pixel_grid(height, width)
+    x, y = gx + forward[..., 0], gy + forward[..., 1]
+    back = cv2.remap(backward, x, y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    total = forward + back
+    bound = 0.01 * ((forward**2).sum(-1) + (back**2).sum(-1)) + 0.5
+    inside = (x >= 0) & (x <= width - 1) & (y >= 0) & (y <= height - 1)
+    return ((total**2).sum(-1) < bound) & inside & np.isfinite(total).all(-1)
+
+
+def _rotation_translation(camera: Camera) -> tuple[np.ndarray, np.ndarray]:
+    viewmat = camera.viewmat.double().numpy()
+    return viewmat[:3, :3], viewmat[:3, 3]
+
+
+def median_depth(camera: Camera, points: np.ndarray | None) -> float | None:
+    """The median depth of the scene's points in front of `camera`; None without points."""
+    if points is None or len(points) == 0:
+        return None
+    rotation, translation = _rotation_translation(camera)
+    depth = points @ rotation[2] + translation[2]
+    depth = depth[depth > 0]
+    return float(np.median(depth)) if len(depth) else None
+
+
+def camera_motion_error(flow: np.ndarray, cam_a: Camera, cam_b: Camera, depth: float | None) -> np.ndarray:
+    """How far, in pixels of b, each pixel's flow from a to b lands from where the cameras' motion
+    allows a still point to land: float32 [H, W] (see the module's docstring)."""
+    height, width = flow.shape[:2]
+    rot_a, t_a = _rotation_translation(cam_a)
+    rot_b, t_b = _rotation_translation(cam_b)
+    rotation = rot_b @ rot_a.T  # a's camera frame -> b's
+    translation = t_b - rotation @ t_a
+    k_a, k_b = cam_a.K.double().numpy(), cam_b.K.double().numpy()
+    gx, gy = _pixel_grid(height, width)
+    x_a = np.stack([gx + 0.5, gy + 0.5, np.ones_like(gx)], axis=-1).astype(np.float64)  # pixel centres
+    x_b = x_a.copy()
+    x_b[..., :2] += flow
+    baseline = float(np.linalg.norm(translation))
+    parallax = np.inf if depth is None else float(k_b[0, 0]) * baseline / depth
+    if baseline == 0.0 or parallax < PARALLAX_PX:  # a turn: the infinite homography moves still points
+        predicted = x_a @ (k_b @ rotation @ np.linalg.inv(k_a)).T
+        predicted = predicted[..., :2] / predicted[..., 2:3]
+        return np.linalg.norm(x_b[..., :2] - predicted, axis=-1).astype(np.float32)
+    skew = np.array([[0.0, -translation[2], translation[1]], [translation[2], 0.0, -translation[0]],
+                     [-translation[1], translation[0], 0.0]])  # fmt: skip
+    fundamental = np.linalg.inv(k_b).T @ skew @ rotation @ np.linalg.inv(k_a)
+    line_b = x_a @ fundamental.T  # F x_a: the epipolar line in b
+    line_a = x_b @ fundamental  # F^T x_b
+    residual = (x_b * line_b).sum(-1)
+    norm = line_b[..., 0] ** 2 + line_b[..., 1] ** 2 + line_a[..., 0] ** 2 + line_a[..., 1] ** 2
+    return np.sqrt(residual**2 / np.maximum(norm, 1e-12)).astype(np.float32)
+
+
+def textured(image: np.ndarray) -> np.ndarray:
+    """Where `image` (uint8 RGB) has the texture flow needs (MIN_TEXTURE): bool [H, W]."""
+    cv2 = import_cv2()
+    gray = cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_RGB2GRAY).astype(np.float32) / 255.0
+    return cv2.cornerMinEigenVal(gray, 5) >= MIN_TEXTURE
+
+
+def clean_mask(mask: np.ndarray) -> np.ndarray:
+    """`mask` without speckle and with its gaps filled: a 3x3 opening, a 7x7 closing (textureless
+    pixels between moving ones), then regions under MIN_REGION_SHARE of the image removed."""
+    cv2 = import_cv2()
+    opened = cv2.morphologyEx(mask.astype(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
+    closed = cv2.morphologyEx(opened, cv2.MORPH_CLOSE, np.ones((7, 7), np.uint8))
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(closed, connectivity=8)
+    keep = np.zeros(count, bool)
+    keep[1:] = stats[1:, cv2.CC_STAT_AREA] >= MIN_REGION_SHARE * mask.size
+    return keep[labels]
+
+
+def motion_mask(errors: list[tuple[np.ndarray, np.ndarray]], evidence: np.ndarray) -> np.ndarray:
+    """Moving where any neighbour's consistent flow misses the cameras' motion by more than the
+    threshold, among the pixels where flow is `evidence` (textured): `errors` is [(error [H, W],
+    consistent [H, W])] per neighbour."""
+    moving = np.zeros(evidence.shape, bool)
+    for error, valid in errors:
+        moving |= valid & evidence & (error > MOTION_THRESHOLD_PX)
+    return clean_mask(moving)
+
+
+@dataclass
+class FlowSummary:
+    folder: Path
+    pairs: int
+    masks: int
+    size: tuple[int, int]
+    seconds: float
+    mean_moving_share: float
+
+
+def flow_folder(scene: Path, factor: int) -> Path:
+    return Path(scene) / FLOW_FOLDER / f"{factor}x"
+
+
+def file_sha256(path: Path) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def _sources(dataset: SceneDataset, frames: list[Frame]) -> dict[str, str]:
+    """Every file the flow of `frames` is computed from (images and camera files), by its path in the
+    scene folder, with its SHA-256."""
+    root = dataset.root
+    files = {}
+    for frame in frames:
+        for path in (frame.image_path, camera_path(root, frame.name)):
+            if path.is_file():
+                files[path.relative_to(root).as_posix()] = file_sha256(path)
+    return files
+
+
+def image_scale(frames: list[Frame]) -> int:
+    """k of the rgb/<k>x folder the frames were read from."""
+    folders = {frame.image_path.parent.name for frame in frames}
+    if len(folders) != 1 or not next(iter(folders)).endswith("x") or not next(iter(folders))[:-1].isdigit():
+        raise LiquidGSError(f"optical flow reads a Nerfies-layout scene (rgb/<k>x/<id>.png); got {sorted(folders)}")
+    return int(next(iter(folders))[:-1])
+
+
+def _time_order(frames: list[Frame]) -> list[Frame]:
+    return sorted(frames, key=lambda f: (f.time, f.name))
+
+
+def _neighbours(frame: Frame, train: list[Frame]) -> list[Frame]:
+    """The train frames FRAME_STEP train frames before and after `frame` in time (itself excluded),
+    or the furthest there is on a side with fewer."""
+    before = [f for f in train if f is not frame and (f.time, f.name) < (frame.time, frame.name)]
+    after = [f for f in train if f is not frame and (f.time, f.name) > (frame.time, frame.name)]
+    return [*before[-FRAME_STEP:][:1], *after[:FRAME_STEP][-1:]]
+
+
+def _load_scene(scene: Path, downscale: int | None) -> SceneDataset:
+    return load_dataset(DataConfig(path=Path(scene), format="nerfies", downscale=downscale, cache_images=0))
+
+
+def scene_image_size(scene: Path) -> tuple[int, int]:
+    """(width, height) of a Nerfies-layout scene's full-size (rgb/1x) frames."""
+    frame = _load_scene(scene, 1).train[0]
+    return frame.camera.width, frame.camera.height
+
+
+def compute_scene_flow(scene: Path, downscale: int | None, log: Log | None = None) -> FlowSummary:
+    """Flow and motion masks of `scene` at rgb/<downscale>x (None: the split's default), written to
+    flow/<k>x whole; an existing flow/<k>x is replaced only once the new one is complete."""
+    started = time.perf_counter()
+    log = log or (lambda line: None)
+    dataset = _load_scene(scene, downscale)
+    train = _time_order(dataset.train)
+    everything = _time_order([*dataset.train, *dataset.test])
+    if len(train) < MIN_TRAIN_FRAMES:
+        raise DataError(
+            scene, f"optical flow needs at least {MIN_TRAIN_FRAMES} train frames, the scene has {len(train)}"
+        )
+    sizes = {(f.camera.width, f.camera.height) for f in everything}
+    if len(sizes) != 1:
+        raise DataError(scene, f"frames of mixed sizes {sorted(sizes)}: optical flow needs one size")
+    factor = image_scale(everything)
+    width, height = sizes.pop()
+    points = dataset.points.double().numpy() if dataset.points is not None else None
+    out = flow_folder(scene, factor)
+    flows: dict[tuple[str, str], np.ndarray] = {}
+
+    def flow_of(a: Frame, b: Frame) -> np.ndarray:
+        if (a.name, b.name) not in flows:
+            flows[(a.name, b.name)] = optical_flow(a.image_uint8(), b.image_uint8())
+        return flows[(a.name, b.name)]
+
+    pairs = list(zip(train[:-1], train[1:], strict=True))
+
+    def build(building: Path) -> list[float]:
+        (building / PAIRS_FOLDER).mkdir()
+        (building / MASKS_FOLDER).mkdir()
+        for i, (a, b) in enumerate(pairs):
+            image_a, image_b = a.image_uint8(), b.image_uint8()
+            forward, backward = optical_flow(image_a, image_b), optical_flow(image_b, image_a)
+            np.savez_compressed(
+                building / PAIRS_FOLDER / f"{a.name}--{b.name}.npz",
+                forward=forward.astype(np.float16),
+                backward=backward.astype(np.float16),
+                forward_consistent=consistent(forward, backward),
+                backward_consistent=consistent(backward, forward),
+            )
+            if (i + 1) % 10 == 0 or i + 1 == len(pairs):
+                log(f"flow: {i + 1}/{len(pairs)} pairs of train frames")
+        shares = []
+        for i, frame in enumerate(everything):
+            neighbours = _neighbours(frame, train)
+            depth = median_depth(frame.camera, points)
+            errors = []
+            for other in neighbours:
+                forward, backward = flow_of(frame, other), flow_of(other, frame)
+                error = camera_motion_error(forward, frame.camera, other.camera, depth)
+                errors.append((error, consistent(forward, backward)))
+            mask = motion_mask(errors, textured(frame.image_uint8()))
+            shares.append(float(mask.mean()))
+            _write_png(building / MASKS_FOLDER / f"{frame.name}.png", mask)
+            for other in neighbours:  # a mask's flow is not kept (the pairs' flow is written already)
+                flows.pop((frame.name, other.name), None)
+                flows.pop((other.name, frame.name), None)
+            if (i + 1) % 10 == 0 or i + 1 == len(everything):
+                log(f"flow: {i + 1}/{len(everything)} motion masks")
+        record = {
+            "format": FLOW_FORMAT,
+            "scale": factor,
+            "size": [width, height],
+            "preset": DIS_PRESET,
+            "threshold_px": MOTION_THRESHOLD_PX,
+            "parallax_px": PARALLAX_PX,
+            "min_region_share": MIN_REGION_SHARE,
+            "min_texture": MIN_TEXTURE,
+            "frame_step": FRAME_STEP,
+            "pairs": [[a.name, b.name] for a, b in pairs],
+            "masks": [frame.name for frame in everything],
+            "sources": _sources(dataset, everything),
+        }
+        write_json_atomic(building / FLOW_FILE, record)
+        return shares
+
+    shares = build_atomically(out, build, replace=True)
+    seconds = time.perf_counter() - started
+    return FlowSummary(out, len(pairs), len(everything), (width, height), seconds, float(np.mean(shares)))
+
+
+def _write_png(path: Path, mask: np.ndarray) -> None:
+    from PIL import Image
+
+    Image.fromarray((mask * 255).astype(np.uint8)).save(path)
+
+
+def check_flow(scene: Path, factor: int) -> list[str]:
+    """What is wrong with flow/<factor>x of `scene`, one line each naming the file (empty: nothing)."""
+    folder = flow_folder(scene, factor)
+    path = folder / FLOW_FILE
+    try:
+        record = json.loads(path.read_text())
+    except (OSError, ValueError) as err:
+        return [f"{path}: unreadable ({err})"]
+    if not isinstance(record, dict) or record.get("format") != FLOW_FORMAT:
+        return [f"{path}: field 'format': not {FLOW_FORMAT}"]
+    size, pairs, masks, sources = (record.get(k) for k in ("size", "pairs", "masks", "sources"))
+    if not (isinstance(size, list) and len(size) == 2 and all(isinstance(v, int) for v in size)):
+        return [f"{path}: field 'size': not [width, height]"]
+    if not (isinstance(pairs, list) and isinstance(masks, list) and isinstance(sources, dict)):
+        return [f"{path}: fields 'pairs', 'masks', 'sources': missing or malformed"]
+    problems = []
+    for name, digest in sources.items():
+        source = Path(scene) / name
+        if not source.is_file():
+            problems.append(f"{source}: missing, but the flow in {folder} was computed from it")
+        elif file_sha256(source) != digest:
+            problems.append(f"{source}: changed since the flow in {folder} was computed from it (stale flow)")
+        if problems:
+            return problems + [f"recompute it: liquidgs data flow {scene}"]
+    width, height = size
+    for pair in pairs:
+        file = folder / PAIRS_FOLDER / f"{pair[0]}--{pair[1]}.npz"
+        problems += _check_pair(file, width, height)
+    for name in masks:
+        problems += _check_mask(folder / MASKS_FOLDER / f"{name}.png", width, height)
+    return problems
+
+
+def _check_pair(file: Path, width: int, height: int) -> list[str]:
+    try:
+        with np.load(file) as data:
+            arrays = {key: data[key] for key in ("forward", "backward", "forward_consistent", "backward_consistent")}
+    except (OSError, ValueError, KeyError) as err:
+        return [f"{file}: unreadable flow ({err})"]
+    for key in ("forward", "backward"):
+        if arrays[key].shape != (height, width, 2):
+            return [f"{file}: field '{key}': shape {arrays[key].shape}, expected {(height, width, 2)}"]
+        if not np.isfinite(arrays[key]).all():
+            return [f"{file}: field '{key}': {int((~np.isfinite(arrays[key])).sum())} non-finite values"]
+    return []
+
+
+def _check_mask(file: Path, width: int, height: int) -> list[str]:
+    from PIL import Image
+
+    try:
+        with Image.open(file) as image:
+            size = image.size
+    except OSError as err:
+        return [f"{file}: unreadable mask ({err})"]
+    return [] if size == (width, height) else [f"{file}: {size[0]}x{size[1]}, the flow is {width}x{height}"]
+
+
+def check_scene_flow(scene: Path) -> list[str]:
+    """`data check`'s lines for every flow/<k>x of `scene`; the first problem is a DataError."""
+    lines = []
+    for folder in sorted((Path(scene) / FLOW_FOLDER).glob("*x")):
+        if not folder.is_dir() or not folder.name[:-1].isdigit():
+            continue
+        problems = check_flow(scene, int(folder.name[:-1]))
+        if problems:
+            raise LiquidGSError(problems[0])
+        record = json.loads((folder / FLOW_FILE).read_text())
+        width, height = record["size"]
+        lines.append(
+            f"flow:       {folder.name}: {len(record['pairs'])} pairs, {len(record['masks'])} motion masks at "
+            f"{width}x{height}, computed from the frames and cameras as they are"
+        )
+    return lines
+
+
+AUTO_MASKS = "auto"
+"""`eval --mask auto`: the scene's own motion masks."""
+
+
+def scene_motion_masks(scene: Path, views: list[Frame]) -> Path:
+    """flow/<k>x/masks of `scene` at the scale `views` were read at, checked first (missing or stale:
+    one line)."""
+    factor = image_scale(views)
+    folder = flow_folder(scene, factor)
+    if not (folder / FLOW_FILE).is_file():
+        raise DataError(
+            folder, f"no motion masks at this scale; compute them: liquidgs data flow {scene} --downscale {factor}"
+        )
+    problems = check_flow(scene, factor)
+    if problems:
+        raise LiquidGSError(problems[0])
+    return folder / MASKS_FOLDER
