@@ -41,3 +41,21 @@ def check_integer(setting: str, value, minimum: int) -> None:
 def one_line(text: str) -> str:
     """Messages from other libraries (torch, yaml) can span lines; the CLI prints one."""
     return " ".join(text.split())
+
+
+def check_finite(source: str | Path, what: str, values) -> None:
+    """LiquidGSError naming `source` and how many of `values` (tensors or arrays, or a mapping of
+    them) are NaN or infinite: every writer of numbers (bake, export's PLY, splatv and web) calls it
+    before anything is written, so a diverged run is refused rather than saved as a broken file."""
+    import numpy as np
+    import torch
+
+    items = values.values() if isinstance(values, dict) else values
+    bad = total = 0
+    for value in items:
+        array = value.detach() if isinstance(value, torch.Tensor) else torch.as_tensor(np.asarray(value))
+        if array.is_floating_point():
+            bad += int((~torch.isfinite(array)).sum())
+        total += array.numel()
+    if bad:
+        raise LiquidGSError(f"{source}: {bad:,} of {total:,} values of {what} are NaN or infinite; nothing written")

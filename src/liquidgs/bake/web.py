@@ -21,6 +21,7 @@ import torch
 from liquidgs.bake.distil import BakeSettings, distil
 from liquidgs.bake.motion import POSITION, interpolate
 from liquidgs.data.capture import build_atomically, refuse_taken
+from liquidgs.errors import check_finite
 
 PLAYER_FILES = ("index.html", "player.js")
 PLAYER_DIR = Path(__file__).parent / "web"
@@ -64,6 +65,8 @@ def write_web(out: Path, run, dataset) -> Path:
     keyframes = keyframes_of(run).detach().float().cpu()
     n = keyframes.shape[1]
     sh = torch.cat([run.params["sh0"], run.params["shN"]], dim=1).detach().float().cpu()
+    opacities = torch.sigmoid(run.params["opacities"].detach().float().cpu())
+    check_finite(run.run_dir, "the Gaussians and their keyframes", [keyframes, opacities, sh])
     frames = [*dataset.test, *dataset.train]
     times = {round(float(f.time), 6) for f in frames}
     meta = {
@@ -79,7 +82,6 @@ def write_web(out: Path, run, dataset) -> Path:
         "cameras": [web_camera(f) for f in frames],
     }
     low, span, quantised = quantise(keyframes)
-    opacities = torch.sigmoid(run.params["opacities"].detach().float().cpu())
     blob = b"".join(np.ascontiguousarray(t.numpy(), dtype="<f4").tobytes() for t in (low, span, opacities, sh))
     blob += np.ascontiguousarray(quantised, dtype="<u2").tobytes()
 

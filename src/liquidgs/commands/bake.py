@@ -22,11 +22,11 @@ import torch
 from rich.console import Console
 
 from liquidgs.atomic import write_atomic, write_json_atomic
-from liquidgs.bake.distil import BakeSettings, describe_over_budget, distil
+from liquidgs.bake.distil import BakeSettings, check_finished, describe_over_budget, distil
 from liquidgs.bake.motion import CHANNELS
 from liquidgs.bake.scene import BAKED_FORMAT, MANIFEST, SCENE, is_baked, read_manifest
 from liquidgs.data.capture import build_atomically, refuse_taken
-from liquidgs.errors import ConfigError, LiquidGSError
+from liquidgs.errors import ConfigError, LiquidGSError, check_finite
 from liquidgs.gaussians import PARAM_KEYS
 from liquidgs.settings import parse_flags
 from liquidgs.train.run import load_run
@@ -67,10 +67,14 @@ def check_args(args: BakeArgs) -> Path:
 def bake(args: BakeArgs, console: Console | None = None) -> dict:
     out = check_args(args)
     run = load_run(args.run, args.device)
-    if not run.finished:
-        raise LiquidGSError(f"{args.run}: {run.progress_label}; bake needs a finished run")
+    check_finished(run, "bake")
     settings = BakeSettings(args.tolerance, args.min_keyframes, args.max_keyframes)
     distilled = distil(run, settings)
+    payload = {
+        "params": {k: run.params[k].detach().cpu().contiguous() for k in PARAM_KEYS},
+        "keyframes": distilled.keyframes.contiguous(),
+    }
+    check_finite(args.run, "the Gaussians and their keyframes", [*payload["params"].values(), payload["keyframes"]])
     n = run.params["means"].shape[0]
     manifest = {
         "format": BAKED_FORMAT,
@@ -84,10 +88,6 @@ def bake(args: BakeArgs, console: Console | None = None) -> dict:
         "interpolation": "Catmull-Rom per channel (position, wxyz quaternion renormalised, scale)",
         "channels": CHANNELS,
         "error": distilled.report,
-    }
-    payload = {
-        "params": {k: run.params[k].detach().cpu().contiguous() for k in PARAM_KEYS},
-        "keyframes": distilled.keyframes.contiguous(),
     }
 
     def build(folder: Path) -> None:

@@ -25,9 +25,18 @@ from rich.console import Console
 from rich.progress import track
 
 from liquidgs.atomic import write_atomic
-from liquidgs.bake.formats import fit_splatv, frame_params, splatv_camera, write_plyseq, write_splatv
+from liquidgs.bake.distil import check_finished
+from liquidgs.bake.formats import (
+    check_frames_finite,
+    fit_splatv,
+    frame_params,
+    sequence_times,
+    splatv_camera,
+    write_plyseq,
+    write_splatv,
+)
 from liquidgs.bake.web import write_web
-from liquidgs.errors import ConfigError
+from liquidgs.errors import ConfigError, check_finite
 from liquidgs.gaussians import write_ply
 from liquidgs.settings import parse_flags
 from liquidgs.train.run import load_run, load_run_dataset
@@ -71,6 +80,8 @@ def export_run(args: ExportArgs, console: Console | None = None) -> list[Path]:
     if args.format == "plyseq" and args.sequence < 2:
         raise ConfigError("--format plyseq needs --sequence N, the number of frames (at least 2)")
     run = load_run(args.run, args.device)
+    if args.format == "web":  # it bakes the run on the way, which bake does for finished runs only
+        check_finished(run, "export --format web")
     if console is not None and not run.finished:
         console.print(f"[yellow]note:[/] {args.run}: {run.progress_label}")
     out = args.out or args.run / "export"
@@ -80,15 +91,19 @@ def export_run(args: ExportArgs, console: Console | None = None) -> list[Path]:
         return [export_splatv(run, out / "scene.splatv", console)]
     if args.format == "web":
         return [write_web(out / "web", run, load_run_dataset(run.config))]
+    times = [*args.time, *sequence_times(args.sequence)]
+    check_frames_finite(run, times)
+    field_weights = {} if run.field is None else run.field.state_dict()  # a baked scene has no network
+    check_finite(args.run, "the field's weights", field_weights)
     written = [write_ply(out / "canonical.ply", run.params)]
-    if run.field is not None:  # a baked scene has no network
-        payload = {"config": dataclasses.asdict(run.config.field_config()), "state_dict": run.field.state_dict()}
+    if run.field is not None:
+        payload = {"config": dataclasses.asdict(run.config.field_config()), "state_dict": field_weights}
         written.append(write_atomic(out / "field.pt", lambda tmp: torch.save(payload, tmp)))
     for t in args.time:
         written.append(write_ply(out / time_file_name(t), frame_params(run, t)))
     if args.sequence:
-        times = [i / max(args.sequence - 1, 1) for i in range(args.sequence)]
-        for i, t in enumerate(track(times, description="PLY sequence", console=console, disable=console is None)):
+        frames = sequence_times(args.sequence)
+        for i, t in enumerate(track(frames, description="PLY sequence", console=console, disable=console is None)):
             written.append(write_ply(out / "sequence" / f"frame_{i:04d}.ply", frame_params(run, t)))
     return written
 
@@ -97,11 +112,16 @@ def export_splatv(run, path: Path, console: Console | None) -> Path:
     """splaTV's motion model fitted to the run (or baked scene); the dataset's cameras go along,
     test views first (the player starts at the first)."""
     model, kept = fit_splatv(run)
+    check_finite(run.run_dir, "the fitted splatv model", vars(model))
     dataset = load_run_dataset(run.config)
     frames = [*dataset.test, *dataset.train]
     written = write_splatv(path, model, [splatv_camera(f.camera, f.name) for f in frames])
     if console is not None:
-        console.print(f"splatv: its cubic motion keeps {100 * kept:.2f}% of the field's motion (position variance)")
+        console.print(
+            "splatv: the run has no motion (no Gaussian moves), so there is none to keep"
+            if kept is None
+            else f"splatv: its cubic motion keeps {100 * kept:.2f}% of the field's motion (position variance)"
+        )
     return written
 
 
