@@ -7,13 +7,11 @@ damaged the way a diverged or broken training would leave them.
 
 from __future__ import annotations
 
-import json
 import re
 import shutil
 from pathlib import Path
 
 import pytest
-import torch
 
 from liquidgs.cli import main as cli
 from liquidgs.train.run_folder import CHECKPOINT, read_checkpoint, write_checkpoint
@@ -83,5 +81,152 @@ WRITERS = {
 def test_a_non_finite_run_is_refused_by_every_writer(broken_runs, writer, damage, capsys):
     run = broken_runs[damage]
     line = refused(capsys, [*WRITERS[writer], "--run", str(run)], run)
-    counted = re.search(rf"{re.escape(str(run))}: ([\d,]+) of ([\d,]+) values of .* are NaN or infinite; nothing written", line)
+    counted = re.search(
+        rf"{re.escape(str(run))}: ([\d,]+) of ([\d,]+) values of .* are NaN or infinite; nothing written", line
+    )
     assert counted and 0 < int(counted[1].replace(",", "")) <= int(counted[2].replace(",", "")), line
+
+
+def test_splatv_of_a_run_without_motion_says_there_is_none_to_keep(puppet_scene, tmp_path, capsys):
+    from tiny_runs import run_train, tiny_flags
+
+    run = tmp_path / "static"
+    run_train(["--data", str(puppet_scene), "--field", "static", *tiny_flags({"iterations": 10}), "--out", str(run)])
+    assert cli(["export", "--run", str(run), "--format", "splatv"]) == 0
+    err = capsys.readouterr().err
+    assert "splatv: the run has no motion (no Gaussian moves), so there is none to keep" in err, err
+    assert (run / "export" / "scene.splatv").is_file()
+
+
+# ----------------------------------------------------------------------------- bounds
+
+def bounded_settings() -> list[tuple[type, str, int]]:
+    """(config class, setting, its bound) for every size setting that multiplies cost."""
+    from liquidgs.bake.benchmark import MAX_REPEATS  # noqa: F401 - an argparse help: checked below
+    from liquidgs.commands.bake import MAX_KEYFRAMES, BakeArgs
+    from liquidgs.commands.export import MAX_SEQUENCE, ExportArgs
+    from liquidgs.commands.render import MAX_SAMPLES, RenderArgs
+    from liquidgs.fields import config as field_config
+    from liquidgs.fields import hexplane
+    from liquidgs.train.config import MAX_INIT_POINTS, TrainConfig
+    from liquidgs.train.motion_reg import MAX_NEIGHBOURS, MotionRegConfig
+
+    return [
+        (MotionRegConfig, "neighbours", MAX_NEIGHBOURS),
+        (TrainConfig, "init_points", MAX_INIT_POINTS),
+        (BakeArgs, "max_keyframes", MAX_KEYFRAMES),
+        (RenderArgs, "uncertainty_samples", MAX_SAMPLES),
+        (ExportArgs, "sequence", MAX_SEQUENCE),
+        (hexplane.HexPlaneConfig, "multires", hexplane.MAX_LEVELS),
+        *[(field_config.FieldOptions, key, hi) for key, (_, hi) in field_config.SIZE_BOUNDS.items()],
+        *[(hexplane.HexPlaneConfig, key, hi) for key, (_, hi) in hexplane.SIZE_BOUNDS.items()],
+    ]
+
+
+def test_every_bound_is_stated_in_its_settings_help():
+    from liquidgs.bake.benchmark import MAX_REPEATS, build_parser
+    from liquidgs.commands.catalog import attribute_docs
+
+    for cls, setting, bound in bounded_settings():
+        assert f"at most {bound:,}" in attribute_docs(cls)[setting], (cls.__name__, setting)
+    repeats = next(a for a in build_parser()._actions if "--repeats" in a.option_strings)
+    assert f"at most {MAX_REPEATS}" in repeats.help
+
+
+@pytest.fixture(scope="module")
+def world(tiny_mlp_run, tmp_path_factory) -> dict[str, Path]:
+    root = tmp_path_factory.mktemp("bounds")
+    run = copy_run(tiny_mlp_run, root / "run")
+    assert cli(["bake", "--run", str(run), "--out", str(root / "baked")]) == 0
+    return {"run": run, "baked": root / "baked", "scene": Path(read_config(run)["data"]["path"])}
+
+
+def read_config(run: Path) -> dict:
+    import yaml
+
+    return yaml.safe_load((run / "config.yml").read_text())
+
+
+TINY = ["--preset", "tiny", "--iterations", "10", "--eval.start", "10"]
+
+OVER_BOUNDS = {
+    "motion.neighbours": (["train", "--data", "{scene}", "--out", "{work}/out", *TINY, "--motion.neighbours", "100000"],
+                          "motion.neighbours must be at most 128, got 100,000"),
+    "mlp width": (["train", "--data", "{scene}", "--out", "{work}/out", *TINY, "--field-options.mlp-width",
+                   "100000000"], "field: mlp_width must be at most 4,096, got 100,000,000"),
+    "cfc units": (["train", "--data", "{scene}", "--out", "{work}/out", *TINY, "--field", "cfc",
+                   "--field-options.backbone-units", "5000"], "field: backbone_units must be at most 4,096, got 5,000"),
+    "init points": (["train", "--data", "{scene}", "--out", "{work}/out", *TINY, "--init-points", "10000001"],
+                    "init-points must be an integer between 1 and 10000000, got 10000001"),
+    "bake keyframes": (["bake", "--run", "{run}", "--out", "{work}/b", "--max-keyframes", "2049"],
+                       "<= max <= 1025, got 9 and 2049"),
+    "render samples": (["render", "--run", "{run}", "--out", "{work}/r", "--uncertainty-samples", "5000"],
+                       "--uncertainty-samples must be 0 or 2 to 1,024, got 5,000"),
+    "export sequence": (["export", "--run", "{run}", "--out", "{work}/e", "--sequence", "100001"],
+                        "--sequence must be between 0 and 100,000, got 100,001"),
+    "bench bake repeats": (["bench", "bake", "--run", "{run}", "--baked", "{baked}", "--repeats", "1000"],
+                           "--repeats between 1 and 100"),
+    "bench bake baked as run": (["bench", "bake", "--run", "{baked}", "--baked", "{baked}"],
+                                "{baked}: a baked scene, not a run; give --run the run it came from"),
+}  # fmt: skip
+
+
+@pytest.mark.parametrize("case", list(OVER_BOUNDS))
+def test_a_setting_past_its_bound_is_one_line_naming_it(case, world, tmp_path, capsys, monkeypatch):
+    work = tmp_path / "work"
+    work.mkdir()
+    monkeypatch.chdir(work)
+    argv, message = OVER_BOUNDS[case]
+    argv = [a.format(work=work, **world) for a in argv]
+    line = refused(capsys, argv, work, world["run"], world["baked"])
+    assert message.format(**world) in line, line
+
+
+@pytest.mark.parametrize("field", ["mlp", "cfc"])
+def test_every_field_size_past_its_bound_is_refused(field):
+    from liquidgs.errors import ConfigError
+    from liquidgs.fields.config import SIZE_BOUNDS, FieldConfig
+    from liquidgs.fields.presets import FAMILY_SIZES
+
+    family = "mlp" if field == "mlp" else "liquid"
+    for key in FAMILY_SIZES[family]:
+        if key not in SIZE_BOUNDS:
+            continue  # the activation: a name, not a size
+        highest = SIZE_BOUNDS[key][1]
+        FieldConfig(name=field, preset="tiny", **{key: highest})  # the bound itself is allowed
+        with pytest.raises(ConfigError, match=f"field: {key} must be at most {highest:,}, got {highest + 1:,}"):
+            FieldConfig(name=field, preset="tiny", **{key: highest + 1})
+
+
+@pytest.mark.parametrize(("override", "message"), [
+    ({"resolution": 5000}, "hexplane: resolution must be at most 4,096, got 5,000"),
+    ({"time_resolution": 3000}, "hexplane: time_resolution must be at most 2,048, got 3,000"),
+    ({"features": 513}, "hexplane: features must be at most 512, got 513"),
+    ({"width": 5000}, "hexplane: width must be at most 4,096, got 5,000"),
+    ({"multires": (1,) * 33}, "hexplane: levels (multires) must be at most 32, got 33"),
+    ({"resolution": 64, "multires": (1, 128)}, "resolution x multires must be at most 4,096 at every level"),
+])  # fmt: skip
+def test_hexplane_sizes_past_their_bounds_are_refused(override, message):
+    from liquidgs.errors import ConfigError
+    from liquidgs.fields.hexplane import HexPlaneConfig
+
+    with pytest.raises(ConfigError, match=re.escape(message)):
+        HexPlaneConfig.preset("tiny", **override)
+
+
+def test_every_preset_and_experiment_spec_stays_within_the_bounds():
+    from liquidgs.experiments import BUILTIN_SPECS, load_spec
+    from liquidgs.experiments.plan import _field_settings, run_config
+    from liquidgs.fields.hexplane import PRESETS, HexPlaneConfig
+
+    for name in PRESETS:
+        HexPlaneConfig.preset(name)
+    specs = [*BUILTIN_SPECS.values(), *(load_spec(p) for p in sorted(Path("docs/experiments").rglob("*.yml")))]
+    checked = 0
+    for spec in specs:
+        for grid in spec.grids:
+            for variant in grid.field_variants():
+                run_config(grid.preset, Path("SCENE"), {**_field_settings(variant), **grid.overrides,
+                                                        **variant.overrides}, spec.name)  # fmt: skip
+                checked += 1
+    assert checked > len(specs)

@@ -32,10 +32,13 @@ def check_number(setting: str, value, *, positive: bool = False) -> None:
         raise ConfigError(f"{setting} must be a finite number {'> 0' if positive else '>= 0'}, got {value!r}")
 
 
-def check_integer(setting: str, value, minimum: int) -> None:
-    """ConfigError naming `setting` unless `value` is an integer >= `minimum` (not true or false)."""
+def check_integer(setting: str, value, minimum: int, maximum: int | None = None) -> None:
+    """ConfigError naming `setting` unless `value` is an integer >= `minimum` (not true or false),
+    and <= `maximum` where given (a size that multiplies cost)."""
     if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
         raise ConfigError(f"{setting} must be an integer >= {minimum}, got {value!r}")
+    if maximum is not None and value > maximum:
+        raise ConfigError(f"{setting} must be at most {maximum:,}, got {value:,}")
 
 
 def one_line(text: str) -> str:

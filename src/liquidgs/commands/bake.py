@@ -33,6 +33,8 @@ from liquidgs.train.run import load_run
 from liquidgs.train.run_folder import CONFIG
 
 MAX_KEYFRAMES = 1025
+"""The most keyframes (--max-keyframes): 16x the default 65, four doublings past it; bake's time and
+the baked scene's bytes grow with them."""
 
 
 @dataclass
@@ -44,7 +46,9 @@ class BakeArgs:
     tolerance: float = BakeSettings.tolerance
     """Error budget half-way between keyframes (fraction of the Gaussian's size; radians)."""
     min_keyframes: int = BakeSettings.min_keyframes
+    """Keyframes to start from (at least 2)."""
     max_keyframes: int = BakeSettings.max_keyframes
+    """Keyframes the doubling stops at, at most 1,025 (MAX_KEYFRAMES)."""
     device: str = "auto"
 
 

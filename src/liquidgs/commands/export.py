@@ -50,7 +50,8 @@ class ExportArgs:
     time: list[float] = field(default_factory=list)
     """Times in [0,1] to export a deformed PLY for."""
     sequence: int = 0
-    """Number of evenly spaced frames of a PLY sequence (0: none); with --format plyseq, of the .zip."""
+    """Number of evenly spaced frames of a PLY sequence (0: none; at most 100,000); with --format
+    plyseq, of the .zip."""
     format: Literal["ply", "plyseq", "splatv", "web"] = "ply"
     """ply: the PLYs above; plyseq: OUT/sequence.zip of --sequence PLYs; splatv: OUT/scene.splatv;
     web: OUT/web, a static folder that plays the scene in a browser."""
@@ -58,6 +59,7 @@ class ExportArgs:
 
 
 MAX_SEQUENCE = 100_000
+"""The most --sequence frames (one PLY each): 100x a 1,000-frame capture."""
 
 
 def time_file_name(time: float) -> str:
@@ -74,7 +76,7 @@ def export_run(args: ExportArgs, console: Console | None = None) -> list[Path]:
             raise ConfigError(f"--time {names[name]} and {t} would both be written to {name}")
         names[name] = t
     if not 0 <= args.sequence <= MAX_SEQUENCE:
-        raise ConfigError(f"--sequence must be between 0 and {MAX_SEQUENCE}, got {args.sequence}")
+        raise ConfigError(f"--sequence must be between 0 and {MAX_SEQUENCE:,}, got {args.sequence:,}")
     if args.format != "ply" and args.time:
         raise ConfigError(f"--time writes single PLYs: it goes with --format ply, not {args.format}")
     if args.format == "plyseq" and args.sequence < 2:
