@@ -7,6 +7,7 @@ damaged the way a diverged or broken training would leave them.
 
 from __future__ import annotations
 
+import json
 import re
 import shutil
 from pathlib import Path
@@ -102,7 +103,6 @@ def test_splatv_of_a_run_without_motion_says_there_is_none_to_keep(puppet_scene,
 
 def bounded_settings() -> list[tuple[type, str, int]]:
     """(config class, setting, its bound) for every size setting that multiplies cost."""
-    from liquidgs.bake.benchmark import MAX_REPEATS  # noqa: F401 - an argparse help: checked below
     from liquidgs.commands.bake import MAX_KEYFRAMES, BakeArgs
     from liquidgs.commands.export import MAX_SEQUENCE, ExportArgs
     from liquidgs.commands.render import MAX_SAMPLES, RenderArgs
@@ -123,14 +123,29 @@ def bounded_settings() -> list[tuple[type, str, int]]:
     ]
 
 
-def test_every_bound_is_stated_in_its_settings_help():
+def test_every_bound_is_stated_in_its_settings_help_and_holds_every_preset_and_spec():
     from liquidgs.bake.benchmark import MAX_REPEATS, build_parser
     from liquidgs.commands.catalog import attribute_docs
+    from liquidgs.experiments import BUILTIN_SPECS, load_spec
+    from liquidgs.experiments.plan import _field_settings, run_config
+    from liquidgs.fields.hexplane import PRESETS, HexPlaneConfig
 
     for cls, setting, bound in bounded_settings():
         assert f"at most {bound:,}" in attribute_docs(cls)[setting], (cls.__name__, setting)
     repeats = next(a for a in build_parser()._actions if "--repeats" in a.option_strings)
     assert f"at most {MAX_REPEATS}" in repeats.help
+    # Every preset and every run of every spec (built in, and those the docs keep) is within them.
+    for name in PRESETS:
+        HexPlaneConfig.preset(name)
+    specs = [*BUILTIN_SPECS.values(), *(load_spec(p) for p in sorted(Path("docs/experiments").rglob("*.yml")))]
+    checked = 0
+    for spec in specs:
+        for grid in spec.grids:
+            for variant in grid.field_variants():
+                run_config(grid.preset, Path("SCENE"), {**_field_settings(variant), **grid.overrides,
+                                                        **variant.overrides}, spec.name)  # fmt: skip
+                checked += 1
+    assert checked > len(specs)
 
 
 @pytest.fixture(scope="module")
@@ -156,10 +171,6 @@ OVER_BOUNDS = {
                    "100000000"], "field: mlp_width must be at most 4,096, got 100,000,000"),
     "cfc units": (["train", "--data", "{scene}", "--out", "{work}/out", *TINY, "--field", "cfc",
                    "--field-options.backbone-units", "5000"], "field: backbone_units must be at most 4,096, got 5,000"),
-    "init points": (["train", "--data", "{scene}", "--out", "{work}/out", *TINY, "--init-points", "10000001"],
-                    "init-points must be an integer between 1 and 10000000, got 10000001"),
-    "bake keyframes": (["bake", "--run", "{run}", "--out", "{work}/b", "--max-keyframes", "2049"],
-                       "<= max <= 1025, got 9 and 2049"),
     "render samples": (["render", "--run", "{run}", "--out", "{work}/r", "--uncertainty-samples", "5000"],
                        "--uncertainty-samples must be 0 or 2 to 1,024, got 5,000"),
     "export sequence": (["export", "--run", "{run}", "--out", "{work}/e", "--sequence", "100001"],
@@ -214,19 +225,107 @@ def test_hexplane_sizes_past_their_bounds_are_refused(override, message):
         HexPlaneConfig.preset("tiny", **override)
 
 
-def test_every_preset_and_experiment_spec_stays_within_the_bounds():
-    from liquidgs.experiments import BUILTIN_SPECS, load_spec
-    from liquidgs.experiments.plan import _field_settings, run_config
-    from liquidgs.fields.hexplane import PRESETS, HexPlaneConfig
+# ----------------------------------------------------------------------------- one line, not a traceback
 
-    for name in PRESETS:
-        HexPlaneConfig.preset(name)
-    specs = [*BUILTIN_SPECS.values(), *(load_spec(p) for p in sorted(Path("docs/experiments").rglob("*.yml")))]
-    checked = 0
-    for spec in specs:
-        for grid in spec.grids:
-            for variant in grid.field_variants():
-                run_config(grid.preset, Path("SCENE"), {**_field_settings(variant), **grid.overrides,
-                                                        **variant.overrides}, spec.name)  # fmt: skip
-                checked += 1
-    assert checked > len(specs)
+@pytest.fixture(scope="module")
+def truncated_run(tiny_mlp_run, tmp_path_factory) -> Path:
+    """The tiny run with its checkpoint.pt cut to half its bytes (a disk that filled, a copy cut off)."""
+    run = copy_run(tiny_mlp_run, tmp_path_factory.mktemp("truncated") / "run")
+    data = (run / CHECKPOINT).read_bytes()
+    (run / CHECKPOINT).write_bytes(data[: len(data) // 2])
+    return run
+
+
+TRUNCATED = {
+    "eval": ["eval", "--run", "{run}"],
+    "render": ["render", "--run", "{run}"],
+    "export": ["export", "--run", "{run}"],
+    "bake": ["bake", "--run", "{run}"],
+    "bench bake": ["bench", "bake", "--run", "{run}", "--baked", "{baked}"],
+}
+
+
+@pytest.mark.parametrize("command", list(TRUNCATED))
+def test_a_truncated_checkpoint_is_one_line_and_nothing_written(command, truncated_run, world, tmp_path, capsys,
+                                                                monkeypatch):  # fmt: skip
+    monkeypatch.chdir(tmp_path)
+    argv = [a.format(run=truncated_run, baked=world["baked"]) for a in TRUNCATED[command]]
+    line = refused(capsys, argv, truncated_run, world["baked"], tmp_path)
+    assert f"{truncated_run / CHECKPOINT}: " in line, line
+
+
+def test_view_of_a_truncated_checkpoint_is_one_line_before_the_server_starts(truncated_run, capsys, monkeypatch):
+    from liquidgs.viewer import server
+
+    def no_server(*args, **kwargs):
+        raise AssertionError("the server started")
+
+    monkeypatch.setattr(server.Viewer, "__init__", no_server)
+    line = refused(capsys, ["view", "--run", str(truncated_run)], truncated_run)
+    assert f"{truncated_run / CHECKPOINT}: " in line, line
+
+
+def test_export_web_refuses_a_failed_run_as_bake_does(tiny_mlp_run, tmp_path, capsys):
+    from liquidgs.train.run_folder import FAILURE, RESULTS
+
+    run = copy_run(tiny_mlp_run, tmp_path / "failed")
+    (run / RESULTS).unlink()
+    (run / FAILURE).write_text(json.dumps({"error": "diverged"}))
+    lines = {}
+    for command in (["bake"], ["export", "--format", "web"]):
+        lines[command[0]] = refused(capsys, [*command, "--run", str(run)], run)
+    for command, line in lines.items():
+        label = "export --format web" if command == "export" else "bake"
+        assert f"{run}: failed run (why: {run / FAILURE}): checkpoint at iteration" in line, line
+        assert line.endswith(f"; {label} needs a finished run"), line
+
+
+CLIP_FIELDS = {"url": "http://127.0.0.1:9/x.mp4", "size": 1, "sha256": "0" * 64, "licence": "l", "moving": ""}
+
+BAD_TABLES = {
+    "clips: a number for the url": ("LIQUIDGS_REAL_CLIPS", {"apple": {"url": 5}}, "real-clips",
+                                    "entry 'apple': field 'url' must be a string, got 5"),
+    "clips: text for the size": ("LIQUIDGS_REAL_CLIPS", {"apple": {"size": "big"}}, "real-clips",
+                                 "entry 'apple': field 'size' must be an integer, got 'big'"),
+    "clips: a list for an entry": ("LIQUIDGS_REAL_CLIPS", {"apple": ["x"]}, "real-clips",
+                                   "entry 'apple' must be a JSON object of fields, got ['x']"),
+    "clips: a missing key": ("LIQUIDGS_REAL_CLIPS", {"new": {k: v for k, v in CLIP_FIELDS.items() if k != "sha256"}},
+                             "real-clips", "entry 'new' is not built in, so it needs field 'sha256'"),
+    "archives: a number for the url": ("LIQUIDGS_DATA_ARCHIVES", {"dnerf": {"url": 5}}, "dnerf",
+                                       "entry 'dnerf': field 'url' must be a string, got 5"),
+    "archives: a number for the checksum": ("LIQUIDGS_DATA_ARCHIVES", {"dnerf": {"sha256": 7}}, "dnerf",
+                                            "entry 'dnerf': field 'sha256' must be a string or null, got 7"),
+    "archives: a list for an entry": ("LIQUIDGS_DATA_ARCHIVES", {"dnerf": [1]}, "dnerf",
+                                      "entry 'dnerf' must be a JSON object of fields, got [1]"),
+    "archives: a missing key": ("LIQUIDGS_DATA_ARCHIVES", {"new": {"url": "http://127.0.0.1:9/x.zip"}}, "new",
+                                "entry 'new' is not built in, so it needs field 'source'"),
+}  # fmt: skip
+
+
+@pytest.mark.parametrize("case", list(BAD_TABLES))
+def test_a_wrongly_typed_download_table_entry_is_one_line_naming_it(case, tmp_path, capsys, monkeypatch):
+    variable, table, dataset, message = BAD_TABLES[case]
+    monkeypatch.setenv(variable, json.dumps(table))
+    line = refused(capsys, ["data", "download", dataset, str(tmp_path / "out")], tmp_path)
+    assert f"{variable}: {message}" in line, line
+
+
+BAD_RECORDS = {
+    "a list": (["[1, 2]"], "line 1 is not a JSON object of record fields, got [1, 2]"),
+    "a list for the stage": (['{"stage": ["setup"], "event": "start"}'], "field 'stage': line 1: must be a string"),
+    "text for the seconds": (['{"stage": "setup", "event": "start"}',
+                              '{"stage": "setup", "event": "end", "status": "passed", "seconds": "ten"}'],
+                             "field 'seconds': line 2: must be a number, got 'ten'"),
+    "no status": (['{"stage": "setup", "event": "start"}', '{"stage": "setup", "event": "end"}'],
+                  "field 'status': line 2: an end record needs a status"),
+}  # fmt: skip
+
+
+@pytest.mark.parametrize("case", list(BAD_RECORDS))
+def test_acceptance_summary_of_wrongly_typed_records_is_one_line(case, tmp_path, capsys):
+    from liquidgs.train.gpu_acceptance import RECORDS
+
+    lines, message = BAD_RECORDS[case]
+    (tmp_path / RECORDS).write_text("\n".join(lines) + "\n")
+    line = refused(capsys, ["bench", "acceptance", "--out", str(tmp_path), "--summary"], tmp_path)
+    assert f"{tmp_path / RECORDS}: {message}" in line, line
