@@ -275,9 +275,9 @@ def test_presets_and_bad_settings():
     assert set(PRESETS) == {"dnerf", "nerfds", "tiny"}
     assert HexPlaneConfig.preset("tiny", width=7).width == 7
     for overrides, match in (
-        (dict(resolution=2), "resolution must be >= 3"),
-        (dict(time_resolution=2), "time_resolution must be >= 3"),
-        (dict(features=0), "features must be >= 1"),
+        (dict(resolution=2), "resolution must be an integer >= 3"),
+        (dict(time_resolution=2), "time_resolution must be an integer >= 3"),
+        (dict(features=0), "features must be an integer >= 1"),
         (dict(multires=()), "multires"),
         (dict(multires=(1, 0)), "multires"),
         (dict(time_l1_weight=float("nan")), "time_l1_weight"),

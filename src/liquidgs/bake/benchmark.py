@@ -31,12 +31,17 @@ from liquidgs.train.dataset import load_run_dataset
 from liquidgs.train.model import render_frame
 from liquidgs.train.run import load_run
 
+MAX_REPEATS = 100
+"""The most --repeats: 33x the default 3; each is one more pass of every render and every part timed."""
+
 
 def build_parser() -> argparse.ArgumentParser:
     parser = ArgumentParser(prog="liquidgs bench bake", description=__doc__.splitlines()[0])
     parser.add_argument("--run", type=Path, required=True, help="the run folder")
     parser.add_argument("--baked", type=Path, required=True, help="its baked scene (liquidgs bake)")
-    parser.add_argument("--repeats", type=int, default=3, help="timed passes over the test views")
+    parser.add_argument(
+        "--repeats", type=int, default=3, help=f"timed passes over the test views (at most {MAX_REPEATS})"
+    )
     parser.add_argument("--threads", type=int, default=0, help="torch intra-op threads (0: torch's default)")
     parser.add_argument("--output", type=Path, help="also append the record to this JSONL file")
     return parser
@@ -65,6 +70,8 @@ def fastest(render, frames, repeats: int) -> tuple[float, float]:
 def measure(run_dir: Path, baked_dir: Path, repeats: int) -> dict:
     if not is_baked(baked_dir):
         raise LiquidGSError(f"{baked_dir}: not a baked scene (no baked.json)")
+    if is_baked(run_dir):  # a scene against itself, or against another bake: no field to compare with
+        raise LiquidGSError(f"{run_dir}: a baked scene, not a run; give --run the run it came from")
     run = load_run(run_dir, "cpu")
     baked = load_baked(baked_dir, "cpu")
     if baked.params["means"].shape != run.params["means"].shape or baked.iteration != run.iteration:
@@ -146,8 +153,11 @@ def measure(run_dir: Path, baked_dir: Path, repeats: int) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.repeats < 1 or args.threads < 0:
-        raise ConfigError("bench bake: need --repeats >= 1 and --threads >= 0")
+    if not 1 <= args.repeats <= MAX_REPEATS or args.threads < 0:
+        raise ConfigError(
+            f"bench bake: need --repeats between 1 and {MAX_REPEATS} and --threads >= 0, "
+            f"got {args.repeats} and {args.threads}"
+        )
     if args.threads:
         torch.set_num_threads(args.threads)
     record = measure(args.run, args.baked, args.repeats)

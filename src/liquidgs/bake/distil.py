@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import torch
 
 from liquidgs.bake.motion import align_quaternion_signs, interpolate, keyframe_times, pack_keyframe, state_error
+from liquidgs.errors import LiquidGSError
 
 VISIBLE_OPACITY = 1.0 / 255.0
 """Gaussians below this opacity cannot change an 8-bit pixel on their own: their error is not checked."""
@@ -44,6 +45,12 @@ class Distilled:
     @property
     def over_budget(self) -> list[dict]:
         return self.report["over_budget"]
+
+
+def check_finished(run, command: str) -> None:
+    """Only a finished run is baked (a failed or unfinished one would be published as if done)."""
+    if not run.finished:
+        raise LiquidGSError(f"{run.run_dir}: {run.progress_label}; {command} needs a finished run")
 
 
 def sample_field(run, times: torch.Tensor) -> torch.Tensor:

@@ -39,7 +39,7 @@ import torch
 
 from liquidgs.atomic import write_atomic
 from liquidgs.bake.motion import POSITION, QUATERNION, SCALE, align_quaternion_signs, keyframe_times, pack_keyframe
-from liquidgs.errors import DataError
+from liquidgs.errors import DataError, check_finite
 from liquidgs.gaussians.model import rgb_to_sh0
 from liquidgs.gaussians.ply import ply_data
 from liquidgs.sh import SH_C0
@@ -82,15 +82,30 @@ def frame_params(run, time: float) -> dict[str, torch.Tensor]:
     }
 
 
+def sequence_times(frames: int) -> list[float]:
+    """`frames` evenly spaced times over [0, 1]."""
+    return [i / max(frames - 1, 1) for i in range(frames)]
+
+
+def check_frames_finite(run, times: list[float]) -> None:
+    """Refuse (one line, before anything is written) a run whose Gaussians are NaN or infinite, as
+    they stand or at any of `times`: the field is evaluated once more per time, which costs less
+    than a half-written export."""
+    check_finite(run.run_dir, "the Gaussians", dict(run.params))
+    for time in times:
+        check_finite(run.run_dir, f"the Gaussians at time {time:g}", frame_params(run, time))
+
+
 def write_plyseq(path: Path, run, frames: int) -> Path:
     """A .zip of `frames` PLYs at evenly spaced times over [0, 1], each with the run's source record."""
+    check_frames_finite(run, sequence_times(frames))
     comments = (source_comment(run.source()),)
 
     def write(tmp: Path) -> None:
         with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=1) as archive:
-            for i in range(frames):
+            for i, time in enumerate(sequence_times(frames)):
                 stream = io.BytesIO()
-                ply_data(frame_params(run, i / max(frames - 1, 1)), comments).write(stream)
+                ply_data(frame_params(run, time), comments).write(stream)
                 archive.writestr(f"frame_{i:04d}.ply", stream.getvalue())
 
     return write_atomic(path, write)
@@ -119,10 +134,10 @@ class SplatvModel:
         return Deformed(means, quats, self.scale, opacity, colors)
 
 
-def fit_splatv(run) -> tuple[SplatvModel, float]:
+def fit_splatv(run) -> tuple[SplatvModel, float | None]:
     """splaTV's model fitted to `run.at_time` (a run or a baked scene), and the share of the
     motion it keeps: 1 - (squared position residual) / (squared position deviation from each
-    Gaussian's mean position), over the fit samples."""
+    Gaussian's mean position), over the fit samples; None where no Gaussian moves (no motion to keep)."""
     times = keyframe_times(FIT_SAMPLES)
     states = []
     for t in times.tolist():
@@ -136,7 +151,9 @@ def fit_splatv(run) -> tuple[SplatvModel, float]:
     position_coef = torch.linalg.lstsq(cubic, positions).solution  # [4, N*3]
     residual = positions - cubic @ position_coef
     deviation = positions - positions.mean(0, keepdim=True)
-    kept = 1.0 - float((residual**2).sum()) / max(float((deviation**2).sum()), 1e-30)
+    moved = float((deviation**2).sum())
+    # The cubic's constant term alone fits the mean, so the share is within [0, 1] but for rounding.
+    kept = min(max(1.0 - float((residual**2).sum()) / moved, 0.0), 1.0) if moved > 0 else None
     quats = states[:, :, QUATERNION].reshape(FIT_SAMPLES, -1)
     quat_coef = torch.linalg.lstsq(cubic[:, :2], quats).solution  # [2, N*4]
     coef = position_coef.reshape(4, n, 3)

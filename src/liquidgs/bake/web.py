@@ -22,6 +22,7 @@ from liquidgs.atomic import build_atomically, write_atomic, write_text_atomic
 from liquidgs.bake.distil import BakeSettings, distil
 from liquidgs.bake.motion import POSITION, interpolate
 from liquidgs.data.capture import refuse_taken
+from liquidgs.errors import check_finite
 
 PLAYER_FILES = ("index.html", "player.js")
 PLAYER_DIR = Path(__file__).parent / "web"
@@ -65,6 +66,8 @@ def write_web(out: Path, run, dataset) -> Path:
     keyframes = keyframes_of(run).detach().float().cpu()
     n = keyframes.shape[1]
     sh = torch.cat([run.params["sh0"], run.params["shN"]], dim=1).detach().float().cpu()
+    opacities = torch.sigmoid(run.params["opacities"].detach().float().cpu())
+    check_finite(run.run_dir, "the Gaussians and their keyframes", [keyframes, opacities, sh])
     frames = [*dataset.test, *dataset.train]
     times = {round(float(f.time), 6) for f in frames}
     meta = {
@@ -81,7 +84,6 @@ def write_web(out: Path, run, dataset) -> Path:
         "source": run.source(),
     }
     low, span, quantised = quantise(keyframes)
-    opacities = torch.sigmoid(run.params["opacities"].detach().float().cpu())
     blob = b"".join(np.ascontiguousarray(t.numpy(), dtype="<f4").tobytes() for t in (low, span, opacities, sh))
     blob += np.ascontiguousarray(quantised, dtype="<u2").tobytes()
 

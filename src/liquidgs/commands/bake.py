@@ -23,18 +23,20 @@ from pathlib import Path
 from rich.console import Console
 
 from liquidgs.atomic import build_atomically, save_torch_atomic, write_json_atomic, write_text_atomic
-from liquidgs.bake.distil import BakeSettings, describe_over_budget, distil
+from liquidgs.bake.distil import BakeSettings, check_finished, describe_over_budget, distil
 from liquidgs.bake.motion import CHANNELS
 from liquidgs.bake.scene import BAKED_FORMAT, MANIFEST, SCENE, is_baked
 from liquidgs.data.cameras_file import CAMERAS_FILE, cameras_record
 from liquidgs.data.capture import refuse_taken
-from liquidgs.errors import ConfigError, LiquidGSError
+from liquidgs.errors import ConfigError, LiquidGSError, check_finite
 from liquidgs.gaussians import PARAM_KEYS
 from liquidgs.settings import parse_flags
 from liquidgs.train.run import load_run
 from liquidgs.train.run_folder import CONFIG, SCENE_PRINT, file_sha256
 
 MAX_KEYFRAMES = 1025
+"""The most keyframes (--max-keyframes): 16x the default 65, four doublings past it; bake's time and
+the baked scene's bytes grow with them."""
 
 
 @dataclass
@@ -46,7 +48,9 @@ class BakeArgs:
     tolerance: float = BakeSettings.tolerance
     """Error budget half-way between keyframes (fraction of the Gaussian's size; radians)."""
     min_keyframes: int = BakeSettings.min_keyframes
+    """Keyframes to start from (at least 2)."""
     max_keyframes: int = BakeSettings.max_keyframes
+    """Keyframes the doubling stops at, at most 1,025 (MAX_KEYFRAMES)."""
     device: str = "auto"
 
 
@@ -68,11 +72,15 @@ def check_args(args: BakeArgs) -> Path:
 def bake(args: BakeArgs, console: Console | None = None) -> dict:
     out = check_args(args)
     run = load_run(args.run, args.device)
-    if not run.finished:
-        raise LiquidGSError(f"{args.run}: {run.progress_label}; bake needs a finished run")
+    check_finished(run, "bake")
     cameras = cameras_record(run.scene())  # the scene checked against the run's print first
     settings = BakeSettings(args.tolerance, args.min_keyframes, args.max_keyframes)
     distilled = distil(run, settings)
+    payload = {
+        "params": {k: run.params[k].detach().cpu().contiguous() for k in PARAM_KEYS},
+        "keyframes": distilled.keyframes.contiguous(),
+    }
+    check_finite(args.run, "the Gaussians and their keyframes", [*payload["params"].values(), payload["keyframes"]])
     n = run.params["means"].shape[0]
     manifest = {
         "format": BAKED_FORMAT,
@@ -86,10 +94,6 @@ def bake(args: BakeArgs, console: Console | None = None) -> dict:
         "interpolation": "Catmull-Rom per channel (position, wxyz quaternion renormalised, scale)",
         "channels": CHANNELS,
         "error": distilled.report,
-    }
-    payload = {
-        "params": {k: run.params[k].detach().cpu().contiguous() for k in PARAM_KEYS},
-        "keyframes": distilled.keyframes.contiguous(),
     }
 
     config_text = (args.run / CONFIG).read_text()

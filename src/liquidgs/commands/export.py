@@ -28,9 +28,18 @@ from rich.console import Console
 from rich.progress import track
 
 from liquidgs.atomic import build_atomically, save_torch_atomic
-from liquidgs.bake.formats import fit_splatv, frame_params, splatv_camera, write_plyseq, write_splatv
+from liquidgs.bake.distil import check_finished
+from liquidgs.bake.formats import (
+    check_frames_finite,
+    fit_splatv,
+    frame_params,
+    sequence_times,
+    splatv_camera,
+    write_plyseq,
+    write_splatv,
+)
 from liquidgs.bake.web import write_web
-from liquidgs.errors import ConfigError
+from liquidgs.errors import ConfigError, check_finite
 from liquidgs.gaussians import write_ply
 from liquidgs.settings import parse_flags
 from liquidgs.train.run import load_run
@@ -45,7 +54,8 @@ class ExportArgs:
     time: list[float] = field(default_factory=list)
     """Times in [0,1] to export a deformed PLY for."""
     sequence: int = 0
-    """Number of evenly spaced frames of a PLY sequence (0: none); with --format plyseq, of the .zip."""
+    """Number of evenly spaced frames of a PLY sequence (0: none; at most 100,000); with --format
+    plyseq, of the .zip."""
     format: Literal["ply", "plyseq", "splatv", "web"] = "ply"
     """ply: the PLYs above; plyseq: OUT/sequence.zip of --sequence PLYs; splatv: OUT/scene.splatv;
     web: OUT/web, a static folder that plays the scene in a browser."""
@@ -53,6 +63,7 @@ class ExportArgs:
 
 
 MAX_SEQUENCE = 100_000
+"""The most --sequence frames (one PLY each): 100x a 1,000-frame capture."""
 
 
 def time_file_name(time: float) -> str:
@@ -70,12 +81,14 @@ def export_run(args: ExportArgs, console: Console | None = None) -> list[Path]:
             raise ConfigError(f"--time {names[name]} and {t} would both be written to {name}")
         names[name] = t
     if not 0 <= args.sequence <= MAX_SEQUENCE:
-        raise ConfigError(f"--sequence must be between 0 and {MAX_SEQUENCE}, got {args.sequence}")
+        raise ConfigError(f"--sequence must be between 0 and {MAX_SEQUENCE:,}, got {args.sequence:,}")
     if args.format != "ply" and args.time:
         raise ConfigError(f"--time writes single PLYs: it goes with --format ply, not {args.format}")
     if args.format == "plyseq" and args.sequence < 2:
         raise ConfigError("--format plyseq needs --sequence N, the number of frames (at least 2)")
     run = load_run(args.run, args.device)
+    if args.format == "web":  # it bakes the run on the way, which bake does for finished runs only
+        check_finished(run, "export --format web")
     if console is not None and not run.finished:
         console.print(f"[yellow]note:[/] {args.run}: {run.progress_label}")
     out = args.out or args.run / "export"
@@ -85,13 +98,16 @@ def export_run(args: ExportArgs, console: Console | None = None) -> list[Path]:
         return [export_splatv(run, out / "scene.splatv", console)]
     if args.format == "web":
         return [write_web(out / "web", run, run.scene())]
+    check_frames_finite(run, [*names.values(), *sequence_times(args.sequence)])
+    field_weights = {} if run.field is None else run.field.state_dict()  # a baked scene has no network
+    check_finite(args.run, "the field's weights", field_weights)
     source = run.source()
     comments = (source_comment(source),)
     written = [write_ply(out / "canonical.ply", run.params, comments)]
-    if run.field is not None:  # a baked scene has no network
+    if run.field is not None:
         payload = {
             "config": dataclasses.asdict(run.config.field_config()),
-            "state_dict": run.field.state_dict(),
+            "state_dict": field_weights,
             "source": source,
         }
         written.append(save_torch_atomic(out / "field.pt", payload))
@@ -105,7 +121,7 @@ def export_run(args: ExportArgs, console: Console | None = None) -> list[Path]:
 def export_sequence(run, folder: Path, frames: int, comments: tuple[str, ...], console: Console | None) -> list[Path]:
     """frame_0000.ply ... at `frames` evenly spaced times, built beside `folder` and renamed into
     place whole: a player never finds part of a sequence, nor frames of an older one."""
-    times = [i / max(frames - 1, 1) for i in range(frames)]
+    times = sequence_times(frames)
     names = [f"frame_{i:04d}.ply" for i in range(frames)]
 
     def build(building: Path) -> None:
@@ -122,11 +138,16 @@ def export_splatv(run, path: Path, console: Console | None) -> Path:
     """splaTV's motion model fitted to the run (or baked scene); the dataset's cameras go along,
     test views first (the player starts at the first)."""
     model, kept = fit_splatv(run)
+    check_finite(run.run_dir, "the fitted splatv model", vars(model))
     dataset = run.scene()
     frames = [*dataset.test, *dataset.train]
     written = write_splatv(path, model, [splatv_camera(f.camera, f.name) for f in frames], run.source())
     if console is not None:
-        console.print(f"splatv: its cubic motion keeps {100 * kept:.2f}% of the field's motion (position variance)")
+        console.print(
+            "splatv: the run has no motion (no Gaussian moves), so there is none to keep"
+            if kept is None
+            else f"splatv: its cubic motion keeps {100 * kept:.2f}% of the field's motion (position variance)"
+        )
     return written
 
 

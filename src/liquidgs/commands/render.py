@@ -33,6 +33,8 @@ from liquidgs.settings import parse_flags
 from liquidgs.train.run import TrainedRun, load_run
 
 MAX_FRAMES = 100_000
+MAX_SAMPLES = 1024
+"""The most --uncertainty-samples: 64x the 16 the docs use; each is one more render of every test view."""
 
 
 @dataclass
@@ -48,7 +50,8 @@ class RenderArgs:
     fps: int = 24
     """Frames per second of the videos (1 to 240)."""
     uncertainty_samples: int = 0
-    """Monte-Carlo passes per test view for uncertainty maps (0: none; needs the 'sde' field)."""
+    """Monte-Carlo passes per test view for uncertainty maps (0: none, else 2 and at most 1,024;
+    needs the 'sde' field)."""
     camera_path: Path | None = None
     """A camera_path.json to render to video instead of the test views, sweep and orbit."""
     device: str = "auto"
@@ -84,8 +87,8 @@ def render_camera_path(run: TrainedRun, camera_path: CameraPath, background, vid
 def render_run(args: RenderArgs, console: Console | None = None) -> dict[str, Path]:
     if not 0.0 <= args.orbit_time <= 1.0:
         raise ConfigError(f"--orbit-time {args.orbit_time} is outside [0, 1]")
-    if not (args.uncertainty_samples == 0 or 2 <= args.uncertainty_samples <= MAX_FRAMES):
-        raise ConfigError(f"--uncertainty-samples must be 0 or 2 to {MAX_FRAMES}, got {args.uncertainty_samples}")
+    if not (args.uncertainty_samples == 0 or 2 <= args.uncertainty_samples <= MAX_SAMPLES):
+        raise ConfigError(f"--uncertainty-samples must be 0 or 2 to {MAX_SAMPLES:,}, got {args.uncertainty_samples:,}")
     for flag, value in (("--sweep-frames", args.sweep_frames), ("--orbit-frames", args.orbit_frames)):
         if not 1 <= value <= MAX_FRAMES:
             raise ConfigError(f"{flag} must be between 1 and {MAX_FRAMES}, got {value}")

@@ -22,10 +22,10 @@ import json
 import os
 import shutil
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, fields, replace
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
-from liquidgs.data.fetch import fetch
+from liquidgs.data.fetch import fetch, table_entry
 from liquidgs.errors import ConfigError
 
 CLIPS_ENV = "LIQUIDGS_REAL_CLIPS"
@@ -79,19 +79,13 @@ def clips() -> dict[str, Clip]:
     raw = os.environ.get(CLIPS_ENV)
     if not raw:
         return dict(CLIPS)
-    known = {f.name for f in fields(Clip)}
     try:
         chosen = json.loads(raw)
-        if not isinstance(chosen, dict) or not chosen or not all(isinstance(v, dict) for v in chosen.values()):
-            raise ValueError("not a non-empty object of objects")
-        table = {}
-        for name, given in chosen.items():
-            unknown = set(given) - known
-            if unknown:
-                raise ValueError(f"'{name}' has unknown field '{sorted(unknown)[0]}'")
-            table[name] = replace(CLIPS[name], **given) if name in CLIPS else Clip(**given)
-    except (ValueError, TypeError) as err:
+    except ValueError as err:
         raise ConfigError(f"{CLIPS_ENV}: not a JSON object of clip -> {{url, size, sha256, ...}} ({err})") from None
+    if not isinstance(chosen, dict) or not chosen:
+        raise ConfigError(f"{CLIPS_ENV}: not a non-empty object of objects (clip -> {{url, size, sha256, ...}})")
+    table = {name: table_entry(CLIPS_ENV, name, given, Clip, CLIPS.get(name)) for name, given in chosen.items()}
     for name in table:
         if not name or name.startswith(".") or {"/", "\\"} & set(name):
             raise ConfigError(f"{CLIPS_ENV}: clip name {name!r} is not a file name")

@@ -22,12 +22,12 @@ import shutil
 import sys
 import zipfile
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 
 from liquidgs.data.clips import SET_NAME as CLIP_SET
 from liquidgs.data.clips import download_clips
-from liquidgs.data.fetch import fetch
+from liquidgs.data.fetch import fetch, table_entry
 from liquidgs.data.loading import check_dataset
 from liquidgs.data.scene import DataConfig
 from liquidgs.errors import ConfigError
@@ -79,13 +79,13 @@ def archives() -> dict[str, Archive]:
         return dict(ARCHIVES)
     try:
         overrides = json.loads(raw)
-        if not isinstance(overrides, dict) or not all(isinstance(v, dict) for v in overrides.values()):
-            raise ValueError("not an object of objects")
-        table = dict(ARCHIVES)
-        for name, fields in overrides.items():
-            table[name] = replace(table[name], **fields) if name in table else Archive(**fields)
-    except (ValueError, TypeError) as err:
+    except ValueError as err:
         raise ConfigError(f"{ARCHIVES_ENV}: not a JSON object of dataset -> {{url, size, sha256}} ({err})") from None
+    if not isinstance(overrides, dict):
+        raise ConfigError(f"{ARCHIVES_ENV}: not an object of objects (dataset -> {{url, size, sha256}})")
+    table = dict(ARCHIVES)
+    for name, fields in overrides.items():
+        table[name] = table_entry(ARCHIVES_ENV, name, fields, Archive, ARCHIVES.get(name))
     return table
 
 

@@ -3,14 +3,17 @@
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import http.client
+import typing
 import urllib.error
 import urllib.request
 from collections.abc import Callable
 from pathlib import Path
 
 from liquidgs.errors import ConfigError
+from liquidgs.settings import describe, matches
 
 CHUNK = 1 << 20
 TIMEOUT_S = 60
@@ -41,3 +44,25 @@ def fetch(url: str, expected: int | None, path: Path, report: Callable[[str], No
     if announced is not None and size != announced:
         raise ConfigError(f"{url}: got {size:,} of the {announced:,} bytes the server announced: truncated")
     return size, digest.hexdigest()
+
+
+def table_entry(variable: str, name: str, given, cls, base=None):
+    """An entry of a download table (a dataclass `cls`) from the JSON object an environment variable
+    gives for `name`: `base` (the built-in entry, if any) with those fields replaced, every field of
+    its own type, one ConfigError naming the variable, the entry and the field otherwise."""
+    if not isinstance(given, dict):
+        raise ConfigError(f"{variable}: entry '{name}' must be a JSON object of fields, got {given!r}")
+    hints = typing.get_type_hints(cls)
+    for key, value in given.items():
+        if key not in hints:
+            raise ConfigError(f"{variable}: entry '{name}' has unknown field '{key}' (fields: {', '.join(hints)})")
+        if not matches(value, hints[key]):
+            raise ConfigError(
+                f"{variable}: entry '{name}': field '{key}' must be {describe(hints[key])}, got {value!r}"
+            )
+    if base is not None:
+        return dataclasses.replace(base, **given)
+    required = [f.name for f in dataclasses.fields(cls) if f.default is dataclasses.MISSING and f.name not in given]
+    if required:
+        raise ConfigError(f"{variable}: entry '{name}' is not built in, so it needs field '{required[0]}'")
+    return cls(**given)

@@ -16,7 +16,7 @@ import typing
 from dataclasses import dataclass
 from typing import Any, Literal
 
-from liquidgs.errors import ConfigError, check_number
+from liquidgs.errors import ConfigError, check_integer, check_number
 from liquidgs.fields.presets import FAMILY_SIZES, PRESET_NAMES, PRESETS
 from liquidgs.fields.registry import field_type, install_options_check
 
@@ -24,6 +24,21 @@ PresetName = Literal[PRESET_NAMES]  # type: ignore[valid-type]
 ACTIVATIONS = ("silu", "relu", "tanh", "gelu", "lecun_tanh")
 NOISE_SITES = ("gate", "ou", "solver")
 SCHEDULES = ("constant", "linear", "cosine")
+
+SIZE_BOUNDS = {
+    "xyz_freqs": (0, 100),
+    "time_freqs": (0, 100),
+    "timenet_width": (0, 4096),
+    "timenet_out": (0, 1024),
+    "mlp_depth": (1, 80),
+    "mlp_width": (1, 4096),
+    "cells": (1, 64),
+    "hidden": (1, 4096),
+    "backbone_units": (1, 4096),
+    "backbone_layers": (1, 32),
+}
+"""(lowest, highest) of each size of the built-in fields: a field's cost grows with each, and the
+highest is 10-32x the largest preset's (fields/presets.py), room for any study on one GPU."""
 
 FIELD_ONLY_OPTIONS = {"grid_lr_scale": "hexplane"}
 """FieldOptions that one field alone reads (by its name): refused for every other field, and left
@@ -56,23 +71,29 @@ class FieldOptions:
 
     # Encodings, shared by the MLP and liquid fields.
     xyz_freqs: int | None = None
-    """Positional-encoding frequencies 2^0..2^(L-1) of the canonical position."""
+    """Positional-encoding frequencies 2^0..2^(L-1) of the canonical position (at most 100)."""
     time_freqs: int | None = None
-    """Positional-encoding frequencies of the time."""
+    """Positional-encoding frequencies of the time (at most 100)."""
     timenet_width: int | None = None
-    """Hidden width of the time network Linear-ReLU-Linear on gamma(t); 0 = no time network."""
+    """Hidden width of the time network Linear-ReLU-Linear on gamma(t); 0 = no time network (at most 4,096)."""
     timenet_out: int | None = None
-    """Output width of the time network (0 when there is none)."""
+    """Output width of the time network (0 when there is none; at most 1,024)."""
 
     # D-3DGS MLP.
     mlp_depth: int | None = None
+    """Hidden layers of the MLP (at most 80)."""
     mlp_width: int | None = None
+    """Width of each hidden layer of the MLP (at most 4,096)."""
 
     # Liquid (CfC) stack.
     cells: int | None = None
+    """CfC cells in the stack (at most 64)."""
     hidden: int | None = None
+    """Hidden units of each cell (at most 4,096)."""
     backbone_units: int | None = None
+    """Width of each cell's backbone layers (at most 4,096)."""
     backbone_layers: int | None = None
+    """Backbone layers of each cell (at most 32)."""
     activation: Literal[ACTIVATIONS] | None = None  # type: ignore[valid-type]
     backbone_dropout: float = 0.0
 
@@ -181,14 +202,11 @@ class FieldConfig(FieldOptions):
                 raise ConfigError(f"{key} applies to the '{owner}' field only, not to '{self.name}'")
         if self.grid_lr_scale is not None:
             check_number("field: grid_lr_scale", self.grid_lr_scale, positive=True)
-        for key in ("xyz_freqs", "time_freqs", "timenet_width", "timenet_out"):
-            if key in values and values[key] < 0:
-                raise ConfigError(f"field: {key} must be >= 0, got {values[key]}")
+        for key, (lowest, highest) in SIZE_BOUNDS.items():
+            if key in values:
+                check_integer(f"field: {key}", values[key], lowest, highest)
         if "timenet_width" in values and (values["timenet_width"] > 0) != (values["timenet_out"] > 0):
             raise ConfigError("field: timenet_width and timenet_out must be both > 0 or both 0")
-        for key in ("mlp_depth", "mlp_width", "cells", "hidden", "backbone_units", "backbone_layers"):
-            if key in values and values[key] < 1:
-                raise ConfigError(f"field: {key} must be >= 1, got {values[key]}")
         check_choice("activation", values.get("activation", "gelu"), ACTIVATIONS)
         check_choice("noise site", self.noise, NOISE_SITES)
         check_choice("lambda schedule", self.lambda_schedule, SCHEDULES)

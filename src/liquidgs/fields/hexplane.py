@@ -31,7 +31,7 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from liquidgs.errors import ConfigError, LiquidGSError, check_number
+from liquidgs.errors import ConfigError, LiquidGSError, check_integer, check_number
 from liquidgs.fields.base import DeformationField, Deltas, ParamGroup, linear_flops, stacked_linear
 from liquidgs.fields.config import FieldConfig
 from liquidgs.fields.registry import register as register_field
@@ -45,20 +45,36 @@ DEFAULT_BOUNDS = 1.6
 """Half-size of the box before fit_bounds (4DGaussians' ModelHiddenParams.bounds)."""
 
 
+MAX_LEVEL_RESOLUTION = 4096
+"""The most spatial nodes per axis at any level (resolution x multiplier): 16x the largest preset's 256."""
+MAX_LEVELS = 32
+"""The most levels (multires entries): 10x the largest preset's 3."""
+SIZE_BOUNDS = {
+    "resolution": (3, MAX_LEVEL_RESOLUTION),
+    "time_resolution": (3, 2048),
+    "features": (1, 512),
+    "width": (1, 4096),
+}
+"""(lowest, highest) of each size: the smoothness takes second differences (3 nodes at least); the
+highest are 13-32x the largest preset's (PRESETS below), as the planes' memory grows with them."""
+
+
 @dataclass(frozen=True)
 class HexPlaneConfig:
     """Sizes of a HexPlane field, the weights of its grid regularisers and its grid's learning rate."""
 
     resolution: int
-    """Spatial nodes per axis at level multiplier 1 (4DGaussians' kplanes_config resolution[:3])."""
+    """Spatial nodes per axis at level multiplier 1 (4DGaussians' kplanes_config resolution[:3]);
+    with the multiplier, at most 4,096 at any level."""
     time_resolution: int
-    """Nodes along the time axis, the same at every level (resolution[3])."""
+    """Nodes along the time axis, the same at every level (resolution[3]); at most 2,048."""
     features: int
-    """Channels of every plane (output_coordinate_dim); the fused feature has features x levels."""
+    """Channels of every plane (output_coordinate_dim); the fused feature has features x
+    levels; at most 512."""
     multires: tuple[int, ...]
-    """Spatial resolution multiplier of each level."""
+    """Spatial resolution multiplier of each level; at most 32 levels."""
     width: int
-    """Hidden width W of the decoder (net_width)."""
+    """Hidden width W of the decoder (net_width); at most 4,096."""
     space_smoothness_weight: float
     """4DGaussians' plane_tv_weight (see HexPlaneField.regulariser_loss for what it weighs)."""
     time_smoothness_weight: float
@@ -71,14 +87,17 @@ class HexPlaneConfig:
     (arguments/dnerf/dnerf_default.py: 1.6e-3 -> 1.6e-5 against 1.6e-4 -> 1.6e-6), 10x at every step."""
 
     def __post_init__(self) -> None:
-        for key in ("resolution", "time_resolution"):  # the smoothness takes second differences
-            if getattr(self, key) < 3:
-                raise ConfigError(f"hexplane: {key} must be >= 3, got {getattr(self, key)}")
-        for key in ("features", "width"):
-            if getattr(self, key) < 1:
-                raise ConfigError(f"hexplane: {key} must be >= 1, got {getattr(self, key)}")
+        for key, (lowest, highest) in SIZE_BOUNDS.items():
+            check_integer(f"hexplane: {key}", getattr(self, key), lowest, highest)
         if not self.multires or min(self.multires) < 1:
             raise ConfigError(f"hexplane: multires must be one or more integers >= 1, got {self.multires}")
+        check_integer("hexplane: levels (multires)", len(self.multires), 1, MAX_LEVELS)
+        finest = self.resolution * max(self.multires)
+        if finest > MAX_LEVEL_RESOLUTION:
+            raise ConfigError(
+                f"hexplane: resolution x multires must be at most {MAX_LEVEL_RESOLUTION:,} at every level, "
+                f"got {self.resolution} x {max(self.multires)} = {finest:,}"
+            )
         for key in ("space_smoothness_weight", "time_smoothness_weight", "time_l1_weight"):
             check_number(f"hexplane: {key}", getattr(self, key))
         check_number("hexplane: grid_lr_scale", self.grid_lr_scale, positive=True)

@@ -99,7 +99,8 @@ class TrainConfig:
     sh_interval: int = 1000
     ssim_weight: float = 0.2
     init_points: int = 100_000
-    """Random initial points in [-init_extent, init_extent]^3 (used when the data has no point cloud)."""
+    """Random initial points in [-init_extent, init_extent]^3 (used when the data has no point cloud);
+    at most 10,000,000."""
     init_extent: float = SCENE_BOUND
     smooth_time: bool = False
     """Annealed smooth training (D-3DGS, real data): t + N(0,1) * scale * s(i) after warm-up."""
@@ -228,6 +229,7 @@ def stretched_schedule(preset: str, iterations: int) -> dict:
 
 MAX_ITERATIONS = 10_000_000
 MAX_INIT_POINTS = 10_000_000
+"""The most init_points: 100x the dnerf preset's 100,000."""
 _INT64_MAX = 2**63 - 1
 
 # Range of every integer setting: (lowest, highest). Zero intervals would divide by zero mid-run.

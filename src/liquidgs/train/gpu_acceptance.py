@@ -36,8 +36,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from liquidgs.atomic import write_text_atomic
-from liquidgs.errors import ConfigError
-from liquidgs.settings import ArgumentParser
+from liquidgs.errors import ConfigError, DataError
+from liquidgs.settings import ArgumentParser, describe, matches
 
 RECORDS = "acceptance.jsonl"
 SUMMARY = "summary.txt"
@@ -203,17 +203,32 @@ def append_record(out_dir: Path, record: dict) -> None:
         os.fsync(file.fileno())
 
 
+SUMMARY_FIELDS = {"stage": str, "event": str, "status": str, "seconds": float, "detail": str, "finished": bool,
+                  "line": str}  # fmt: skip
+"""The fields of a record that the summary reads, with their types (the others are left as they are)."""
+
+
 def read_records(out_dir: Path) -> list[dict]:
-    """The records; a last line cut by a kill mid-write is left out."""
+    """The records; a last line cut by a kill mid-write is left out. A record that is not an object
+    of the fields the summary reads, each of its type (SUMMARY_FIELDS), is one DataError naming the
+    file, the line and the field."""
     path = Path(out_dir) / RECORDS
     if not path.is_file():
         return []
     records = []
-    for line in path.read_text().splitlines():
+    for number, line in enumerate(path.read_text().splitlines(), start=1):
         try:
-            records.append(json.loads(line))
+            record = json.loads(line)
         except json.JSONDecodeError:
             continue
+        if not isinstance(record, dict):
+            raise DataError(path, f"line {number} is not a JSON object of record fields, got {record!r}")
+        for key, kind in SUMMARY_FIELDS.items():
+            if key in record and not matches(record[key], kind):
+                raise DataError(path, f"line {number}: must be {describe(kind)}, got {record[key]!r}", key)
+        if record.get("event") == "end" and "status" not in record:
+            raise DataError(path, f"line {number}: an end record needs a status", "status")
+        records.append(record)
     return records
 
 

@@ -47,6 +47,8 @@ LOCAL_FIELD_WEIGHT = 0.5
 """Each neighbour term's weight, unless set, for a field registered with local_deformation."""
 GLOBAL_FIELD_STILLNESS = 0.1
 """The stillness term's weight, unless set, for a field that is one network over all of space."""
+MAX_NEIGHBOURS = 128
+"""The most motion.neighbours: 16x the default 8 (each step compares anchors x neighbours pairs)."""
 
 
 @dataclass
@@ -69,6 +71,8 @@ class MotionRegConfig:
     local_deformation, which the neighbour terms hold). A config.yml made before this term existed
     trained without it (0)."""
     neighbours: int = 8
+    """Nearest canonical neighbours of each anchor the rigidity and isometry terms compare, at most
+    128 (MAX_NEIGHBOURS): each step's cost grows with them."""
     anchors: int = 2048
     """Gaussians the terms are averaged over each step (all when fewer)."""
     knn_every: int = 100
@@ -90,7 +94,8 @@ class MotionRegConfig:
 
     def __post_init__(self) -> None:
         check_capture_switch("motion.apply", self.apply)
-        for name in ("neighbours", "anchors", "knn_every"):
+        check_integer("motion.neighbours", self.neighbours, 1, MAX_NEIGHBOURS)
+        for name in ("anchors", "knn_every"):  # more anchors than Gaussians means all of them
             check_integer(f"motion.{name.replace('_', '-')}", getattr(self, name), 1)
         if not isinstance(self.fixed_sizes, bool):
             raise ConfigError(f"motion.fixed-sizes must be true or false, got {self.fixed_sizes!r}")
