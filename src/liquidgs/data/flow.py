@@ -427,3 +427,33 @@ def scene_motion_masks(scene: Path, views: list[Frame]) -> Path:
     if problems:
         raise LiquidGSError(problems[0])
     return folder / MASKS_FOLDER
+
+
+@dataclass
+class FlowPair:
+    """The measured flow between two train frames (names), at the training scale."""
+
+    first: str
+    second: str
+    forward: np.ndarray  # [H, W, 2] float32, first -> second
+    backward: np.ndarray  # second -> first
+    forward_consistent: np.ndarray  # [H, W] bool
+    backward_consistent: np.ndarray
+
+
+def read_flow_pairs(scene: Path, factor: int) -> list[FlowPair]:
+    """flow/<factor>x's pairs of `scene`, checked first (missing or stale: one line)."""
+    folder = flow_folder(scene, factor)
+    if not (folder / FLOW_FILE).is_file():
+        raise DataError(
+            folder, f"no optical flow at this scale; compute it: liquidgs data flow {scene} --downscale {factor}"
+        )
+    problems = check_flow(scene, factor)
+    if problems:
+        raise LiquidGSError(problems[0])
+    pairs = []
+    for first, second in json.loads((folder / FLOW_FILE).read_text())["pairs"]:
+        with np.load(folder / PAIRS_FOLDER / f"{first}--{second}.npz") as data:
+            flows = [data[key].astype(np.float32) for key in ("forward", "backward")]
+            pairs.append(FlowPair(first, second, *flows, data["forward_consistent"], data["backward_consistent"]))
+    return pairs

@@ -35,6 +35,7 @@ from liquidgs.render import BACKENDS
 from liquidgs.settings import to_dict, with_settings
 from liquidgs.train.camera_opt import Alignment, CameraRefineConfig, known_format, refines
 from liquidgs.train.exposure import ExposureConfig, compensates
+from liquidgs.train.flow_loss import FlowLossConfig
 from liquidgs.train.motion_reg import MotionRegConfig, motion_applies
 from liquidgs.train.strategy import DensifyConfig
 
@@ -127,6 +128,8 @@ class TrainConfig:
     off for D-NeRF)."""
     exposure: ExposureConfig = dataclasses.field(default_factory=ExposureConfig)
     """A colour correction per training frame (on for captures, off for D-NeRF)."""
+    flow: FlowLossConfig = dataclasses.field(default_factory=FlowLossConfig)
+    """The optical-flow loss (off by default; captures with flow at the training scale)."""
 
     def __post_init__(self) -> None:
         own = field_options_class(self.field)
@@ -372,6 +375,8 @@ def identity_v2(cfg: TrainConfig) -> dict:
         d["exposure"]["apply"] = "on"
     else:
         del d["exposure"]
+    if not cfg.flow.weight:  # the optical-flow loss, added after version 2: off in every run made before it
+        del d["flow"]
     if not cfg.perturb.exposure:  # the exposure-flicker stress test, added after version 2
         del d["perturb"]["exposure"]
     d["data"]["path"] = str(Path(d["data"]["path"]).resolve())

@@ -18,6 +18,7 @@ import numpy as np
 import torch
 
 from liquidgs.data import SceneDataset, load_dataset, spread_extent
+from liquidgs.data.flow import image_scale, read_flow_pairs
 from liquidgs.data.scene import MIN_CAMERA_EXTENT
 from liquidgs.errors import ConfigError, LiquidGSError
 from liquidgs.eval import LPIPS, LPIPSUnavailable, evaluate_views, ssim
@@ -29,6 +30,7 @@ from liquidgs.train.camera_opt import CameraRefinement, aligned_render, refines
 from liquidgs.train.config import TrainConfig, save_yaml
 from liquidgs.train.dataset import load_run_dataset
 from liquidgs.train.exposure import ExposureCompensation, compensates
+from liquidgs.train.flow_loss import FlowLoss
 from liquidgs.train.model import deform, hold_sizes, render_frame
 from liquidgs.train.motion_reg import MotionRegulariser, holds_sizes, regularisation
 from liquidgs.train.phases import NoClock, PhaseClock
@@ -157,6 +159,7 @@ class Trainer:
             ExposureCompensation(cfg.exposure, self.dataset.train, cfg.iterations, self.device, cfg.optim.adam_eps)
             if compensates(cfg.exposure, self.dataset.format) else None
         )  # fmt: skip
+        self.flow_loss = self._flow_loss()
         self.alignment = cfg.alignment(self.dataset.format)
         """How test views are aligned for the second score (None: the run has only the first)."""
         self.state = TrainState()
@@ -175,6 +178,19 @@ class Trainer:
             return None
         by_name = {frame.name: frame.camera for frame in clean.train}
         return [by_name[frame.name] for frame in self.dataset.train]
+
+    def _flow_loss(self) -> FlowLoss | None:
+        """The optical-flow loss over the scene's flow at the training scale, or None (weight 0)."""
+        if not self.cfg.flow.weight:
+            return None
+        if self.dataset.format != "nerfies":
+            raise ConfigError(
+                f"flow.weight: the optical-flow loss needs a capture with flow; {self.cfg.data.path} is D-NeRF"
+            )
+        # At the scale of the images trained on: flow.json's hashes tie it to those very files.
+        pairs = read_flow_pairs(self.cfg.data.path, image_scale(self.dataset.train))
+        names = [frame.name for frame in self.dataset.train]
+        return FlowLoss(self.cfg.flow.weight, pairs, names, self.device, self.cfg.backend)
 
     def _initial_gaussians(self) -> torch.nn.ParameterDict:
         cfg, ds = self.cfg, self.dataset
@@ -304,6 +320,8 @@ class Trainer:
             loss = loss + self.motion.loss(
                 step, p["means"], p["quats"], deformed.means, deformed.quats, deformed.scales
             )
+        if self.flow_loss is not None:
+            loss = loss + self._flow_term(gaussians, index, frame, use_field, step)
         if not torch.isfinite(loss):
             raise self._diverged(f"non-finite loss at iteration {step}")
         clock.mark("loss_forward")
@@ -344,6 +362,18 @@ class Trainer:
             "n_gaussians": self.params["means"].shape[0],
             **report,
         }
+
+    def _flow_term(self, gaussians, index: int, frame, use_field: bool, step: int):
+        """The optical-flow loss of this step's frame against one of its neighbours (0 where it has none)."""
+        target = self.flow_loss.target(index, self.camera_rng)
+        if target is None:
+            return 0.0
+        other = self.dataset.train[target.neighbour]
+        later = deform(self.params, self.field if use_field else None, other.time)
+        if self.cameras is not None:
+            later = self.cameras.correct(later, target.neighbour, other.camera, step)
+        term = self.flow_loss.loss(gaussians, frame.camera, later, other.camera, target)
+        return 0.0 if term is None else term
 
     def _scheduled_disturbance(self, step: int, sh_raised: bool, n_before: int, report: dict) -> str | None:
         """The recipe's own step that may drop the training PSNR by design, if this step was one."""

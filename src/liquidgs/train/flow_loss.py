@@ -1,0 +1,105 @@
+"""The optical-flow loss: the motion the Gaussians make on screen, held to the motion measured in the
+video (data.flow).
+
+For a train frame at time t and its neighbouring train frame at time t', each Gaussian's motion on
+screen is where the neighbour's camera sees it at t' minus where this frame's camera sees it at t
+(each Gaussian deformed by the field at its own time, each camera with its refinement). Those 2D
+motions are composited per pixel with the same weights as colour (the rasteriser renders them as
+the colour of a second pass, on every backend), divided by the pixel's alpha, and compared with the
+measured flow (L1, in pixels) where the flow is consistent both ways and the render is opaque
+(alpha at least MIN_ALPHA). Off unless `flow.weight` is set (> 0), and then it needs the scene's
+flow at the training scale (`liquidgs data flow SCENE --downscale K`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from liquidgs.cameras import Camera
+from liquidgs.data.flow import FlowPair
+from liquidgs.errors import check_number
+from liquidgs.render import rasterize
+from liquidgs.train.model import Deformed
+
+MIN_ALPHA = 0.5
+"""Pixels the render covers less than this are left out: their composited motion is mostly empty space."""
+
+
+@dataclass
+class FlowLossConfig:
+    """The optical-flow loss on captures with flow (see liquidgs.train.flow_loss)."""
+
+    weight: float = 0.0
+    """The loss's weight (L1 in pixels of the training images); 0: off. Needs the scene's flow at the
+    training scale (`liquidgs data flow`)."""
+
+    def __post_init__(self) -> None:
+        check_number("flow.weight", self.weight)
+
+
+@dataclass
+class _Target:
+    neighbour: int  # the train index of the other frame
+    flow: torch.Tensor  # [H, W, 2] measured, from this frame to the neighbour
+    valid: torch.Tensor  # [H, W] bool
+
+
+class FlowLoss:
+    """Each train frame's measured flow to its neighbours (forward to the next, backward to the previous)."""
+
+    def __init__(
+        self, weight: float, pairs: list[FlowPair], train_names: list[str], device: torch.device, backend: str
+    ):
+        self.weight = weight
+        self.backend = backend
+        index = {name: i for i, name in enumerate(train_names)}
+        self.targets: dict[int, list[_Target]] = {}
+        for pair in pairs:
+            if pair.first not in index or pair.second not in index:
+                continue  # a pair of frames this run does not train on (a thinned-out split)
+            a, b = index[pair.first], index[pair.second]
+            forward = _Target(b, _tensor(pair.forward, device), _tensor(pair.forward_consistent, device))
+            backward = _Target(a, _tensor(pair.backward, device), _tensor(pair.backward_consistent, device))
+            self.targets.setdefault(a, []).append(forward)
+            self.targets.setdefault(b, []).append(backward)
+
+    def target(self, index: int, rng: np.random.Generator) -> _Target | None:
+        """One of the frame's neighbours' measured flow, drawn with the run's camera generator."""
+        targets = self.targets.get(index)
+        if not targets:
+            return None
+        return targets[int(rng.integers(0, len(targets)))]
+
+    def loss(self, now: Deformed, camera: Camera, later: Deformed, later_camera: Camera, target: _Target):
+        """weight x the mean L1 between the composited screen motion of the Gaussians (`now` seen by
+        `camera`, `later` by `later_camera`) and the measured flow, over the pixels where both count."""
+        motion = project(later.means, later_camera) - project(now.means, camera)
+        features = torch.cat([motion, motion.new_zeros(motion.shape[0], 1)], dim=1)
+        out = rasterize(
+            now.means, now.quats, now.scales, now.opacities, features,
+            camera.viewmat.to(now.means.device), camera.K.to(now.means.device), camera.width, camera.height,
+            sh_degree=None, background=features.new_zeros(3), backend=self.backend,
+        )  # fmt: skip
+        alpha = out.alpha[..., 0]
+        rendered = out.rgb[..., :2] / alpha.clamp_min(MIN_ALPHA)[..., None]
+        use = target.valid & (alpha.detach() >= MIN_ALPHA)
+        if not bool(use.any()):
+            return None
+        return self.weight * (rendered[use] - target.flow[use]).abs().mean()
+
+
+def project(means: torch.Tensor, camera: Camera) -> torch.Tensor:
+    """Pixel positions [N, 2] of world points [N, 3] through a pinhole camera (points behind it
+    project through a depth clamped at 1e-6)."""
+    viewmat = camera.viewmat.to(means)
+    K = camera.K.to(means)
+    in_camera = means @ viewmat[:3, :3].T + viewmat[:3, 3]
+    depth = in_camera[:, 2:3].clamp_min(1e-6)
+    return (in_camera[:, :2] / depth) @ K[:2, :2].T + K[:2, 2]
+
+
+def _tensor(array: np.ndarray, device: torch.device) -> torch.Tensor:
+    return torch.from_numpy(np.ascontiguousarray(array)).to(device)
