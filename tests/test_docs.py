@@ -245,3 +245,33 @@ def test_the_cli_reference_lists_every_flag_of_every_command():
     reference = GENERATED["reference/cli.md"]
     for option in all_option_strings() - {"--help", "-h", "--config"}:
         assert f"`{option}`" in reference, option
+
+
+# An absolute path of the machine a page or report was written on (/tmp/..., /work/..., /root/...,
+# /home/...): meaningless to a reader elsewhere. After a space, a bracket, a quote, a backtick, `=` or `:`.
+MACHINE_PATH = re.compile(r"(?<![^\s(`'\"=:,])/(?:tmp|work|root|home)/")
+
+
+def machine_paths(root: Path) -> list[str]:
+    """'file:line: path' for each machine path in README.md and the committed .md / .txt / .tex under docs/."""
+    files = [root / "README.md"] + sorted(p for p in (root / "docs").rglob("*") if p.suffix in {".md", ".txt", ".tex"})
+    found = []
+    for path in files:
+        for number, line in enumerate(path.read_text().splitlines(), 1):
+            for match in MACHINE_PATH.finditer(line):
+                word = line[match.start() :].split()[0].strip("`'\",;()")
+                found.append(f"{path.relative_to(root)}:{number}: {word}")
+    return found
+
+
+def test_no_page_or_committed_report_names_a_machine_path(tmp_path):
+    found = machine_paths(ROOT)
+    assert not found, "\n".join(found)
+    (tmp_path / "docs" / "experiments" / "x").mkdir(parents=True)
+    (tmp_path / "README.md").write_text("Scores at 1/8; see https://example.org/tmp/a.\n")
+    (tmp_path / "docs" / "experiments" / "x" / "report.md").write_text("folder `/tmp/exp1`, data root `x`\n")
+    (tmp_path / "docs" / "experiments" / "x" / "tables.tex").write_text("looked for: /root/.cache/a.pth\n")
+    (tmp_path / "docs" / "experiments" / "x" / "note.txt").write_text("\n(/home/me/data)\n")
+    assert machine_paths(tmp_path) == ["docs/experiments/x/note.txt:2: /home/me/data",
+                                       "docs/experiments/x/report.md:1: /tmp/exp1",
+                                       "docs/experiments/x/tables.tex:1: /root/.cache/a.pth"]  # fmt: skip
