@@ -4,6 +4,8 @@
 #   make docs   - the documentation site (docs/, mkdocs.yml) into build/site, offline, warnings as
 #                 errors; installs the `docs` extra into .venv first (CI runs it after make test)
 #   make test-fast - the suite without the tests marked slow, for a contributor's loop
+#   make reference - rewrite docs/reference/{cli,specs,errors}.md from the code (committed, so their
+#                 links work on GitHub too; tests/test_docs.py fails while they are out of date)
 # and one opt-in target:
 #   make lpips-reference - re-check (or, with LPIPS_REFERENCE=write, re-record) the PyPI lpips
 #                          distances that tests/test_lpips_reference.py holds ours to; it builds
@@ -20,7 +22,7 @@ LPIPS_REFERENCE ?= check
 TEST_WORKERS ?= auto
 PYTEST := $(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile
 
-.PHONY: demo test test-fast docs lint setup lpips-reference
+.PHONY: demo test test-fast docs lint setup lpips-reference reference
 
 # As the liquidgs command does (liquidgs/__init__.py): idle OpenMP threads sleep, not spin.
 export OMP_WAIT_POLICY ?= PASSIVE
@@ -54,6 +56,9 @@ $(BIN)/mkdocs: $(BIN)/liquidgs pyproject.toml
 
 docs: $(BIN)/mkdocs
 	$(BIN)/mkdocs build --strict
+
+reference: $(BIN)/liquidgs
+	$(BIN)/python scripts/docs_hooks.py
 
 # Not a substitute for `make test`: the slow tests hold the quality bars and the crash, resume and
 # executor guarantees.

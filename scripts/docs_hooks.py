@@ -1,7 +1,16 @@
-"""MkDocs hooks (mkdocs.yml `hooks:`): pages generated from the code when the site is built, so they
-cannot drift from it. tests/test_docs.py checks the same pages' links without MkDocs."""
+"""The reference pages generated from the code: docs/reference/cli.md, specs.md and errors.md.
+
+They are committed, so that their links work where the Markdown is read (GitHub shows the files as
+they are in the repository); `make reference` (this file run as a script) rewrites them after the code
+changes, and tests/test_docs.py fails while a committed page differs from what the code generates.
+As MkDocs hooks (mkdocs.yml `hooks:`) they are generated again when the site is built, so the site is
+never older than the code it is built from."""
 
 from __future__ import annotations
+
+from pathlib import Path
+
+DOCS = Path(__file__).resolve().parents[1] / "docs"
 
 
 def generated_pages() -> dict[str, str]:
@@ -25,7 +34,7 @@ def specs_reference() -> str:
     lines = [
         "# Built-in experiment specs",
         "",
-        "Generated when the site is built from `liquidgs.experiments.BUILTIN_SPECS` (what"
+        "Generated from `liquidgs.experiments.BUILTIN_SPECS` (what"
         " `liquidgs experiment list` prints). *Iterations* is the spec's training iterations summed over"
         " its runs (each run's `iterations` override, else its preset's); runs shared between specs"
         " (see [Experiments](../experiments.md#sharing-runs)) are counted in each. At R training iterations"
@@ -50,8 +59,24 @@ def on_files(files, config):
     from mkdocs.structure.files import File  # imported here: the tests read generated_pages without MkDocs
 
     for path, text in generated_pages().items():
+        committed = files.get_file_from_path(path)
+        if committed is not None:
+            files.remove(committed)
         files.append(File.generated(config, path, content=text))
     return files
+
+
+def write_pages(docs: Path = DOCS) -> list[str]:
+    """Write every generated page under ``docs``; return those whose text changed."""
+    changed = []
+    for path, text in generated_pages().items():
+        target = docs / path
+        if not target.is_file() or target.read_text() != text:
+            target.parent.mkdir(parents=True, exist_ok=True)
+            target.write_text(text)
+            changed.append(path)
+    return changed
+
 
 
 # The errors a user sees: liquidgs.errors.LiquidGSError and its subclasses (the CLI prints them as one line).
@@ -74,7 +99,8 @@ def _template(node) -> str:
 
 
 def error_messages(src) -> list[tuple[str, int, str]]:
-    """(module path, line, message template) of every user-facing error raised in the package."""
+    """(module path, line, message template) of every user-facing error raised in the package, in
+    the order of the source."""
     import ast
 
     out = []
@@ -103,18 +129,23 @@ def errors_reference() -> str:
     lines = [
         "# Every error message",
         "",
-        "Generated when the site is built from the package's source: every error liquidgs raises for a"
-        " user to read (`liquidgs.errors.LiquidGSError` and its kinds), as the template of its line"
+        "Generated from the package's source (`make reference`, and again when the site is built): every"
+        " error liquidgs raises for a user to read (`liquidgs.errors.LiquidGSError` and its kinds), as the template of its line"
         " (`{…}` is filled in: a path, a value, a count). The command prints it as"
         " `liquidgs COMMAND: error: LINE` and exits 2. What the common ones mean and what to do:"
         " [Troubleshooting](../troubleshooting.md).",
         "",
     ]
     module = None
-    for path, line, message in error_messages(src):
+    for path, _, message in error_messages(src):  # no line numbers: any edit above a raise would move them
         if path != module:
             module = path
             lines += ["", f"## `{path}`", ""]
         text = " ".join(message.split()).replace("`", "'")
-        lines.append(f"- `{text}` (line {line})")
+        lines.append(f"- `{text}`")
     return "\n".join(lines) + "\n"
+
+
+if __name__ == "__main__":
+    for name in write_pages():
+        print(f"wrote docs/{name}")

@@ -1,6 +1,8 @@
 """The documentation is tested: every relative link and anchor in README.md and the docs pages
-resolves, and every `liquidgs ...` command line they show parses with the current flags. Each problem
-is one line naming the page and the line. No MkDocs needed (`make docs` builds the site itself)."""
+resolves where the page is read - on GitHub (the files as committed, GitHub's heading anchors) and on
+the built site (docs/ plus the generated pages, MkDocs' anchors) - and every `liquidgs ...` command line
+they show parses with the current flags. Each problem is one line naming the page and the line. No
+MkDocs needed (`make docs` builds the site itself)."""
 
 from __future__ import annotations
 
@@ -39,7 +41,7 @@ GENERATED = generated_pages()
 
 
 def pages() -> dict[Path, str]:
-    """Every page as the site and GitHub show it: README.md, docs/**/*.md, and the generated ones."""
+    """Every page as the site shows it: README.md, docs/**/*.md, the generated ones as the code writes them."""
     out = {ROOT / "README.md": (ROOT / "README.md").read_text()}
     out.update({path: path.read_text() for path in sorted(DOCS.rglob("*.md"))})
     out.update({DOCS / name: text for name, text in GENERATED.items()})
@@ -47,6 +49,8 @@ def pages() -> dict[Path, str]:
 
 
 PAGES = pages()
+# The pages as committed (what GitHub shows), the generated ones only where they are committed.
+COMMITTED = {path: path.read_text() for path in [ROOT / "README.md", *sorted(DOCS.rglob("*.md"))]}
 
 
 def mkdocs_slug(text: str) -> str:
@@ -75,11 +79,13 @@ def prose_lines(text: str):
         yield number, line, fence is not None, shell
 
 
-def anchors(path: Path) -> set[str]:
-    slug = github_slug if path == ROOT / "README.md" else mkdocs_slug
+def anchors(path: Path, github: bool) -> set[str]:
+    """The heading anchors of a page as GitHub gives them (the file as committed) or as the site does."""
+    slug = github_slug if github else mkdocs_slug
     seen: dict[str, int] = {}
     out = set()
-    for _, line, in_code, _ in prose_lines(PAGES[path]):
+    text = COMMITTED[path] if github else PAGES[path]
+    for _, line, in_code, _ in prose_lines(text):
         heading = HEADING.match(line)
         if in_code or not heading:
             continue
@@ -93,17 +99,31 @@ def anchors(path: Path) -> set[str]:
 
 
 def link_problem(page: Path, target: str) -> str | None:
+    """What is wrong with a relative link where its page is read, or None: on GitHub (a file or folder
+    committed at that path; the anchor GitHub gives the heading) and, for a page under docs/, on the
+    site (a file under docs/ or a generated page; the anchor MkDocs gives the heading)."""
     if re.match(r"^[a-z][a-z0-9+.-]*:", target):  # http:, https:, mailto:
         return None
     where, _, anchor = target.partition("#")
     resolved = (page.parent / where).resolve() if where else page
-    if resolved not in PAGES and not resolved.exists():
-        return f"broken link '{target}': no {resolved.relative_to(ROOT) if resolved.is_relative_to(ROOT) else resolved}"
+    name = resolved.relative_to(ROOT) if resolved.is_relative_to(ROOT) else resolved
+    on_github = resolved in COMMITTED or resolved.exists()
+    on_site = page.is_relative_to(DOCS) and (resolved in PAGES or on_github) and resolved.is_relative_to(DOCS)
+    if not on_github and resolved not in PAGES:
+        return f"broken link '{target}': no {name}"
+    if not on_github:
+        return f"link '{target}' is broken on GitHub: {name} is generated, not committed (`make reference`)"
+    if page.is_relative_to(DOCS) and not on_site:
+        return f"link '{target}' is broken on the site: {name} is outside docs/"
     if anchor and resolved.suffix == ".md":
-        if resolved not in PAGES:
+        if resolved not in PAGES or resolved not in COMMITTED:
             return f"link '{target}': {resolved.name} is not a documentation page"
-        if anchor not in anchors(resolved):
-            return f"broken anchor '{target}': no heading '#{anchor}' in {resolved.relative_to(ROOT)}"
+        views = [("GitHub", True)] + ([("the site", False)] if page.is_relative_to(DOCS) else [])
+        broken = [view for view, github in views if anchor not in anchors(resolved, github)]
+        if len(broken) == len(views):
+            return f"broken anchor '{target}': no heading '#{anchor}' in {name}"
+        if broken:
+            return f"anchor '{target}' is broken on {broken[0]}: no heading gives '#{anchor}' there in {name}"
     return None
 
 
@@ -213,6 +233,42 @@ def test_a_broken_link_a_missing_anchor_and_a_removed_flag_are_each_one_line(tmp
     assert all("\n" not in line for line in found)
 
 
+def test_a_link_or_anchor_that_works_only_on_github_or_only_on_the_site_is_one_line():
+    page, fake, generated = DOCS / "getting-started.md", DOCS / "fake.md", DOCS / "reference" / "fake.md"
+    # Python-Markdown drops the dash, GitHub keeps it: '#sizes-and-caps' on the site, '#sizes--and-caps' on GitHub.
+    COMMITTED[fake] = PAGES[fake] = "# Fake\n\n## Sizes — and caps\n"
+    PAGES[generated] = "# Generated only\n"
+    PAGES[page] = COMMITTED[page] + (
+        "\n[ref](reference/fake.md), [make](../Makefile), [a](fake.md#sizes-and-caps), [b](fake.md#sizes--and-caps)\n"
+    )
+    try:
+        found = problems(page)
+    finally:
+        PAGES[page] = COMMITTED[page]
+        del COMMITTED[fake], PAGES[fake], PAGES[generated]
+    assert found == [
+        f"docs/getting-started.md:{len(PAGES[page].splitlines()) + 2}: {problem}"
+        for problem in (
+            "link 'reference/fake.md' is broken on GitHub: docs/reference/fake.md is generated, not committed"
+            " (`make reference`)",
+            "link '../Makefile' is broken on the site: Makefile is outside docs/",
+            "anchor 'fake.md#sizes-and-caps' is broken on GitHub: no heading gives '#sizes-and-caps' there in"
+            " docs/fake.md",
+            "anchor 'fake.md#sizes--and-caps' is broken on the site: no heading gives '#sizes--and-caps' there in"
+            " docs/fake.md",
+        )
+    ], found
+    # README.md is read on GitHub only: a link from it to a file outside docs/ is fine.
+    assert link_problem(ROOT / "README.md", "Makefile") is None
+
+
+def test_the_committed_reference_pages_are_what_the_code_generates():
+    """docs/reference/{cli,specs,errors}.md are committed so that links to them work on GitHub; after a
+    change to the settings, the specs or an error message, `make reference` rewrites them."""
+    stale = [name for name, text in GENERATED.items() if COMMITTED.get(DOCS / name) != text]
+    assert not stale, f"out of date with the code (run `make reference`): {', '.join(f'docs/{n}' for n in stale)}"
+
+
 def nav_pages(entries) -> set[str]:
     """The page paths the site's nav names, at any depth (an entry is a path or {title: entries})."""
     found = set()
@@ -245,3 +301,37 @@ def test_the_cli_reference_lists_every_flag_of_every_command():
     reference = GENERATED["reference/cli.md"]
     for option in all_option_strings() - {"--help", "-h", "--config"}:
         assert f"`{option}`" in reference, option
+
+
+# An absolute path of the machine a page or report was written on (/tmp/..., /work/..., /root/...,
+# /home/...): meaningless to a reader elsewhere. After a space, a bracket, a quote, a backtick, `=` or `:`.
+MACHINE_PATH = re.compile(r"(?<![^\s(`'\"=:,])/(?:tmp|work|root|home)/")
+
+
+def machine_paths(root: Path) -> list[str]:
+    """'file:line: path' for each machine path in README.md and the committed .md / .txt / .tex under docs/."""
+    # The generated reference pages print the code's own defaults (bench acceptance's /tmp folder).
+    generated = {root / "docs" / name for name in GENERATED}
+    files = [root / "README.md"] + sorted(
+        p for p in (root / "docs").rglob("*") if p.suffix in {".md", ".txt", ".tex"} and p not in generated
+    )
+    found = []
+    for path in files:
+        for number, line in enumerate(path.read_text().splitlines(), 1):
+            for match in MACHINE_PATH.finditer(line):
+                word = line[match.start() :].split()[0].strip("`'\",;()")
+                found.append(f"{path.relative_to(root)}:{number}: {word}")
+    return found
+
+
+def test_no_page_or_committed_report_names_a_machine_path(tmp_path):
+    found = machine_paths(ROOT)
+    assert not found, "\n".join(found)
+    (tmp_path / "docs" / "experiments" / "x").mkdir(parents=True)
+    (tmp_path / "README.md").write_text("Scores at 1/8; see https://example.org/tmp/a.\n")
+    (tmp_path / "docs" / "experiments" / "x" / "report.md").write_text("folder `/tmp/exp1`, data root `x`\n")
+    (tmp_path / "docs" / "experiments" / "x" / "tables.tex").write_text("looked for: /root/.cache/a.pth\n")
+    (tmp_path / "docs" / "experiments" / "x" / "note.txt").write_text("\n(/home/me/data)\n")
+    assert machine_paths(tmp_path) == ["docs/experiments/x/note.txt:2: /home/me/data",
+                                       "docs/experiments/x/report.md:1: /tmp/exp1",
+                                       "docs/experiments/x/tables.tex:1: /root/.cache/a.pth"]  # fmt: skip

@@ -23,7 +23,7 @@ from liquidgs.experiments.report.collect import Method
 from liquidgs.experiments.report.figures import PANEL, crop_window
 from liquidgs.experiments.report.references import MEAN, paper_targets
 from liquidgs.experiments.report.tables import METRICS, Cell, Row, Table, to_latex
-from liquidgs.experiments.report.write import score_table
+from liquidgs.experiments.report.write import portable_paths, score_table
 from liquidgs.experiments.runner import train_command
 from liquidgs.fields.config import PAPER_LAMBDA
 from liquidgs.train.config import preset_config, save_yaml
@@ -365,6 +365,31 @@ def test_a_tie_is_called_a_tie(hand_built):
     text = write_report(hand_built).read_text()
     assert re.search(r"Dataset mean: SDE-LNN \(lambda 0\) leads with \S+ dB, 0\.05 dB ahead of D-3DGS \(MLP\)"
                      r".* this is a tie\.", text)  # fmt: skip
+
+
+def test_the_report_names_no_absolute_path_of_the_machine_that_wrote_it(hand_built, tmp_path):
+    """The experiment folder by its name, the data root by its folder name, a missing run relative to the
+    experiment folder, the torch cache an LPIPS reason names as ~/.cache/...: a committed report holds
+    no path of the machine it was written on."""
+    results = sorted(hand_built.rglob("results.json"))
+    cache = "/home/someone/.cache/torch/hub/checkpoints/alexnet-owt-7be5be79.pth"
+    for path in results[1:]:
+        raw = json.loads(path.read_text())
+        raw["final"].update(lpips=None, lpips_unavailable=f"LPIPS-Alex unavailable: looked for: {cache} (pass x)")
+        path.write_text(json.dumps(raw))
+    missing = results[0].parent.relative_to(hand_built).as_posix()
+    results[0].unlink()
+    text = write_report(hand_built).read_text()
+    tex = (hand_built / "report" / "tables.tex").read_text()
+    assert "Experiment folder `exp` (run folders below are relative to it), data root `data`." in text
+    assert f": `{missing}`" in text.split("## Missing runs")[1]
+    assert "looked for: ~/.cache/torch/hub/checkpoints/alexnet-owt-7be5be79.pth (pass x)" in text
+    assert r"looked for: \textasciitilde{}/.cache/torch/hub/checkpoints/alexnet-owt-7be5be79.pth" in tex
+    for written in (text, tex):
+        assert str(tmp_path) not in written and "/home/" not in written, written
+    assert "1/8" in portable_paths("at 1/8, see https://example.org/a/b", hand_built, tmp_path / "data")
+    assert portable_paths(f"in {tmp_path}/data/dnerf/lego and {hand_built}/dnerf", hand_built,
+                          tmp_path / "data") == "in data/dnerf/lego and dnerf"  # fmt: skip
 
 
 # ------------------------------------------------------------------ bad input

@@ -14,7 +14,7 @@ verdicts all equal the measured ones is printed, with each comparison's flip rat
   the worst case the README's simulation (verdict_stability.py) assumes;
 - 2 sigma: pessimistic.
 
-    .venv/bin/python docs/experiments/machine_change.py /work/exp/stress-24      # about 10 s
+    .venv/bin/python docs/experiments/machine_change.py outputs/experiments/stress-24     # about 10 s
 """
 
 from __future__ import annotations
@@ -62,8 +62,8 @@ def main() -> None:
     measured = verdicts(table, floor)
     runs = sorted({run for clusters in table.values() for pair in clusters for run in pair})
     clusters = sorted({len(c) for c in table.values()})
-    print(f"{args.experiment}: {len(table)} distinct comparisons on {' / '.join(map(str, clusters))} clusters, "
-          f"{len(runs)} runs; floor {floor:.3f} dB ({source})")  # fmt: skip
+    print(f"{Path(args.experiment).name}: {len(table)} distinct comparisons on "
+          f"{' / '.join(map(str, clusters))} clusters, {len(runs)} runs; floor {floor:.3f} dB ({source})")  # fmt: skip
     sigma = floor / 2
     sizes = {"0.05 dB": 0.05, "0.1 dB": 0.1, f"sigma {sigma:.3f}": sigma, f"2 sigma {2 * sigma:.3f}": 2 * sigma}
     rng = np.random.default_rng(0)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import torch
@@ -350,6 +351,36 @@ def _qualitative_section(scores: DatasetScores, evaluation: str, out_dir: Path, 
     md.append("")
 
 
+# A report is committed and read on other machines, so it names no absolute path of the machine that
+# wrote it: the experiment folder by its name (run folders relative to it), the data root by its folder
+# name, a file under a .cache folder (the torch hub cache an LPIPS reason names) as ~/.cache/..., any
+# other absolute path by its last part. An absolute path starts with / after a space, a bracket, a quote,
+# a backtick, `=` or `:`, and has at least two parts (so 1/8 or a URL is left alone).
+_ABSOLUTE_PATH = re.compile(r"(?<![^\s(`'\"=:,])/(?:[\w.@+\\-]+/)+[\w.@+\\-]*")
+
+
+def portable_paths(text: str, experiment_dir: Path, data_root: str | Path, tex: bool = False) -> str:
+    """``text`` with every absolute path rewritten as above (``tex``: paths are LaTeX-escaped, `~` is one)."""
+    places = [(Path(experiment_dir).absolute().as_posix(), ""), (Path(data_root).absolute().as_posix(), None)]
+    resolved = [(Path(place).resolve().as_posix(), name) for place, name in places]
+    data_name = Path(data_root).absolute().name
+
+    def rewrite(match: re.Match) -> str:
+        path = match.group(0).replace("\\_", "_") if tex else match.group(0)
+        out = None
+        for place, name in places + resolved:
+            if path == place or path.startswith(place + "/"):
+                rest = path[len(place) + 1 :]
+                out = (rest or ".") if name is not None else "/".join(filter(None, (data_name, rest)))
+                break
+        if out is None:
+            parts = path.rstrip("/").split("/")
+            out = "~/" + "/".join(parts[parts.index(".cache") :]) if ".cache" in parts else parts[-1]
+        return out.replace("_", "\\_").replace("~", "\\textasciitilde{}") if tex else out
+
+    return _ABSOLUTE_PATH.sub(rewrite, text)
+
+
 def write_report(
     experiment_dir: Path, out_dir: Path | None = None, evaluation: str = "final", references: bool = False
 ) -> Path:
@@ -366,7 +397,8 @@ def write_report(
         f"# Experiment report: {spec.get('name', experiment_dir.name)}",
         "",
         *([spec["description"], ""] if spec.get("description") else []),
-        f"Experiment folder `{experiment_dir}`, data root `{collection.experiment.data_root}`. "
+        f"Experiment folder `{experiment_dir.resolve().name}` (run folders below are relative to it), data root "
+        f"`{Path(collection.experiment.data_root).name}`. "
         f"{len(collection.finished)} of {planned} planned runs finished"
         + (f"; {len(collection.missing)} missing (listed at the end)." if collection.missing else "."),
         f"Every score below is the **{EVALUATION_TEXT[evaluation]}**.",
@@ -404,5 +436,6 @@ def write_report(
     else:
         md.append("None: every planned run finished.")
     md.append("")
-    write_text_atomic(out_dir / "tables.tex", "\n".join(tex))
-    return write_text_atomic(out_dir / "report.md", "\n".join(md))
+    data_root = collection.experiment.data_root
+    write_text_atomic(out_dir / "tables.tex", portable_paths("\n".join(tex), experiment_dir, data_root, tex=True))
+    return write_text_atomic(out_dir / "report.md", portable_paths("\n".join(md), experiment_dir, data_root))
