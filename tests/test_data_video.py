@@ -397,6 +397,24 @@ def test_stale_flow_is_one_line_and_data_flow_makes_it_fresh_or_leaves_it_whole(
     assert run_cli(["data", "check", str(scene)])[0] == 0
 
 
+def test_the_flow_loss_trains_on_a_capture_with_flow_and_is_one_line_without(video_scene, tmp_path, puppet_scene):
+    out, _ = video_scene
+    flags = ["--field", "mlp", "--preset", "tiny", "--iterations", "30", "--warmup", "10", "--eval.start", "30",
+             "--eval.fps-frames", "1", "--cameras.align-steps", "5", "--flow.weight", "0.02"]  # fmt: skip
+    code, _, stderr = run_cli(
+        ["train", "--data", str(out), "--downscale", "1", *flags, "--out", str(tmp_path / "flow")]
+    )
+    assert code == 0, stderr
+    assert "weight: 0.02" in (tmp_path / "flow" / "config.yml").read_text()
+    for data, scale, message in ((out, "2", f"no optical flow at this scale; compute it: liquidgs data flow {out}"),
+                                 (puppet_scene, "1", "the optical-flow loss needs a capture with flow")):  # fmt: skip
+        code, _, stderr = run_cli(
+            ["train", "--data", str(data), "--downscale", scale, *flags, "--out", str(tmp_path / "x")]
+        )
+        assert code == 2 and message in stderr and len(stderr.strip().splitlines()) == 1, stderr
+        assert not (tmp_path / "x").exists()
+
+
 def test_flow_needs_two_train_frames_and_refuses_other_layouts(video_scene, tmp_path, puppet_scene):
     import shutil
 

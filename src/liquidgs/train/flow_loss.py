@@ -76,19 +76,26 @@ class FlowLoss:
     def loss(self, now: Deformed, camera: Camera, later: Deformed, later_camera: Camera, target: _Target):
         """weight x the mean L1 between the composited screen motion of the Gaussians (`now` seen by
         `camera`, `later` by `later_camera`) and the measured flow, over the pixels where both count."""
-        motion = project(later.means, later_camera) - project(now.means, camera)
-        features = torch.cat([motion, motion.new_zeros(motion.shape[0], 1)], dim=1)
-        out = rasterize(
-            now.means, now.quats, now.scales, now.opacities, features,
-            camera.viewmat.to(now.means.device), camera.K.to(now.means.device), camera.width, camera.height,
-            sh_degree=None, background=features.new_zeros(3), backend=self.backend,
-        )  # fmt: skip
-        alpha = out.alpha[..., 0]
-        rendered = out.rgb[..., :2] / alpha.clamp_min(MIN_ALPHA)[..., None]
+        rendered, alpha = rendered_flow(now, camera, later, later_camera, self.backend)
         use = target.valid & (alpha.detach() >= MIN_ALPHA)
         if not bool(use.any()):
             return None
         return self.weight * (rendered[use] - target.flow[use]).abs().mean()
+
+
+def rendered_flow(now: Deformed, camera: Camera, later: Deformed, later_camera: Camera, backend: str = "auto"):
+    """The Gaussians' screen motion from `camera` at `now` to `later_camera` at `later`, composited per
+    pixel with colour's weights and divided by alpha: ([H, W, 2] pixels, alpha [H, W])."""
+    motion = project(later.means, later_camera) - project(now.means, camera)
+    features = torch.cat([motion, motion.new_zeros(motion.shape[0], 1)], dim=1)
+    device = now.means.device
+    out = rasterize(
+        now.means, now.quats, now.scales, now.opacities, features,
+        camera.viewmat.to(device), camera.K.to(device), camera.width, camera.height,
+        sh_degree=None, background=features.new_zeros(3), backend=backend,
+    )  # fmt: skip
+    alpha = out.alpha[..., 0]
+    return out.rgb[..., :2] / alpha.clamp_min(MIN_ALPHA)[..., None], alpha
 
 
 def project(means: torch.Tensor, camera: Camera) -> torch.Tensor:
