@@ -88,6 +88,28 @@ def test_a_non_finite_run_is_refused_by_every_writer(broken_runs, writer, damage
     assert counted and 0 < int(counted[1].replace(",", "")) <= int(counted[2].replace(",", "")), line
 
 
+READERS = {
+    "eval": ["eval"],
+    "render": ["render", "--sweep-frames", "2", "--orbit-frames", "2"],
+    "view": ["view", "--port", "0"],
+}
+
+
+@pytest.mark.parametrize("damage", ["nan field", "inf scale"])
+@pytest.mark.parametrize("reader", list(READERS))
+def test_a_non_finite_run_is_one_line_to_every_reader_not_a_score(broken_runs, reader, damage, capsys, monkeypatch):
+    """eval and render used to end in a traceback from the rasteriser's input check."""
+    from liquidgs.viewer import server
+
+    def no_server(*args, **kwargs):
+        raise AssertionError("the server started")
+
+    monkeypatch.setattr(server.Viewer, "__init__", no_server)
+    run = broken_runs[damage]
+    line = refused(capsys, [*READERS[reader], "--run", str(run)], run)
+    assert re.search(rf"{re.escape(str(run))}: [\d,]+ of [\d,]+ values of the Gaussians at time .* are NaN", line), line
+
+
 def test_splatv_of_a_run_without_motion_says_there_is_none_to_keep(puppet_scene, tmp_path, capsys):
     from tiny_runs import run_train, tiny_flags
 

@@ -106,6 +106,7 @@ def render_run(args: RenderArgs, console: Console | None = None) -> dict[str, Pa
     frames = dataset.test or dataset.train
     if not 0 <= args.sweep_camera < len(frames):
         raise ConfigError(f"--sweep-camera {args.sweep_camera} is not a test view (0..{len(frames) - 1})")
+    run.at_time(frames[0].time)  # a diverged run: its one line before any progress bar or file
     out = args.out or args.run / "renders"
     background = torch.tensor(dataset.background, dtype=torch.float32)
     if camera_path is not None:

@@ -11,7 +11,7 @@ import torch
 
 from liquidgs.cameras import Camera
 from liquidgs.data import SceneDataset
-from liquidgs.errors import ConfigError, LiquidGSError
+from liquidgs.errors import ConfigError, LiquidGSError, check_finite
 from liquidgs.fields import build_field
 from liquidgs.gaussians import PARAM_KEYS
 from liquidgs.train.config import TrainConfig, config_hash, load_yaml
@@ -63,7 +63,10 @@ class TrainedRun:
 
     @torch.no_grad()
     def at_time(self, time: float) -> Deformed:
-        return deform(self.params, self.field if self.config.field != "static" else None, time)
+        """The Gaussians at `time`; a diverged run (NaN or infinity in them) is one line, not a score."""
+        gaussians = deform(self.params, self.field if self.config.field != "static" else None, time)
+        check_finite(self.run_dir, f"the Gaussians at time {time:g}", vars(gaussians))
+        return gaussians
 
     @torch.no_grad()
     def sample_at_time(self, time: float) -> Deformed:

@@ -105,6 +105,7 @@ def load_runs(run_dirs: list[Path], device: str = "auto") -> list[RunScene]:
             raise LiquidGSError(f"{run_dir}: not a finished liquidgs run ({run.progress_label})")
         kind = run.config.field if run.field is not None else f"{run.config.field}, baked"
         label = f"{len(scenes) + 1}: {kind} ({run_dir.name})"
+        run.at_time(0.5)  # a diverged run is refused here, not frame by frame in the browser
         scene = RunScene(run, label)
         if scenes and scene.run.config.data.path != scenes[0].run.config.data.path:
             raise LiquidGSError(
