@@ -14,7 +14,8 @@
 # 4. masks of the moving subject on each test view, from the boxes drawn by eye in
 #    docs/experiments/real-clips-boxes.json, and `liquidgs eval --mask` of every finished run of a clip
 #    that has them (scores inside and outside, test cameras as given and aligned);
-# 5. the two reports. Steps already done (a folder that exists) are skipped, so a stopped rebuild resumes.
+# 5. how the scenes' own motion masks (data flow) agree with the boxes (DIR/mask-agreement.txt);
+# 6. the two reports. Steps already done (a folder that exists) are skipped, so a stopped rebuild resumes.
 # LIQUIDGS (default: liquidgs) is the command to run, e.g. "python -m liquidgs.cli"; PYTHON (default:
 # python3) one with liquidgs' dependencies, for the masks.
 set -euo pipefail
@@ -58,5 +59,6 @@ for masks in "$out"/masks/*/; do
             || echo "$clip: eval --mask of ${run%/} failed: $(tail -n 1 "$log")" >&2
     done
 done
+"${python[@]}" "$root/docs/experiments/real_clips_mask_agreement.py" "$out/scenes" | tee "$out/mask-agreement.txt"
 "${liquidgs[@]}" experiment report "$out/experiment"
 "${liquidgs[@]}" experiment report "$out/experiment-without-regularisers"
