@@ -44,8 +44,11 @@ class EvalArgs:
     quantize_8bit: bool | None = None
     device: str = "auto"
     mask: Path | None = None
-    """Folder of masks of the moving subject, <view name>.png at the view's size, nonzero inside (the
-    masks `data video --mask-dynamic` takes): scores inside and outside them, with the cameras as given."""
+    """Folder of masks of the moving subject, <view name>.png at the view's size, nonzero grey level
+    inside (the masks `data video --mask-dynamic` takes); a mask whose grey level is flat marks the
+    subject by nonzero alpha, one whose grey and alpha both vary must agree. One view's mask may be
+    empty; every view's empty, or every pixel covered, is refused. Scores inside and outside them,
+    with the cameras as given."""
 
 
 def evaluate_run(args: EvalArgs) -> dict:
