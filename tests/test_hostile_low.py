@@ -19,7 +19,7 @@ from liquidgs.data import generate_synthetic
 from liquidgs.data.download import ARCHIVES_ENV
 from liquidgs.settings import parse_flag_settings
 from liquidgs.train.config import TrainConfig
-from tiny_runs import one_line_error
+from tiny_runs import one_line_error, tiny_flags
 
 
 @pytest.fixture(scope="module")
@@ -66,10 +66,12 @@ def test_a_negative_learning_rate_is_refused_by_the_configs_own_range_check(scen
          "--motion.stillness has no effect: --motion.apply auto is off for dnerf data (on for captures), so no "
          "motion term is trained"),
     ],
+    ids=["static-field-options", "another-fields-options", "motion-off", "static-motion", "motion-auto-on-dnerf"],
 )  # fmt: skip
 def test_a_setting_the_run_would_ignore_is_one_line_naming_it(scenes, tmp_path, capsys, layout, flags, message):
     out = tmp_path / "run"
-    line = refused(capsys, ["train", "--data", str(scenes / layout), "--out", str(out), *flags], out)
+    short = tiny_flags({"iterations": 20, "cameras.align_steps": 2})  # where it is not refused: a short run
+    line = refused(capsys, ["train", "--data", str(scenes / layout), "--out", str(out), *short, *flags], out)
     assert line == f"liquidgs train: error: {message}"
 
 
