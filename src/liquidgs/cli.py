@@ -5,7 +5,8 @@ that `liquidgs data check` does not pay for importing the trainer.
 
 Every failure a user can cause ends in one line on stderr and exit 2 (130 for Ctrl-C):
 LiquidGSError carries its own message; an OSError (read-only file system, a file where a
-folder is expected, permissions) is reported with the path it names.
+folder is expected, permissions) is reported with the path it names. A reader of the output that has
+gone (`| head`, progress bar included) ends the command quietly with 141, as SIGPIPE would.
 """
 
 from __future__ import annotations

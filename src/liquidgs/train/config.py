@@ -319,6 +319,9 @@ def validate(cfg: TrainConfig) -> None:
     cfg.field_config()  # the field's own rules, now that its name, preset and lambda are known
 
 
+_FIELD_OPTION_NAMES = frozenset(f.name for f in dataclasses.fields(FieldOptions))
+
+
 def check_given_settings(cfg: TrainConfig, given: typing.Iterable[str]) -> None:
     """ConfigError for a setting given on the command line (dotted keys) that this run never reads: a
     field option of another field, a motion term's setting where the motion terms are off. Only what
@@ -342,9 +345,6 @@ def check_given_settings(cfg: TrainConfig, given: typing.Iterable[str]) -> None:
             else:
                 why = f"--motion.apply auto is off for {data_format} data (on for captures)"
             raise ConfigError(f"--motion.{name.replace('_', '-')} has no effect: {why}, so no motion term is trained")
-
-
-_FIELD_OPTION_NAMES = frozenset(f.name for f in dataclasses.fields(FieldOptions))
 
 
 # Settings that change where or how a run executes, not what it computes.
