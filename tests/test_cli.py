@@ -38,7 +38,15 @@ _CHILD = textwrap.dedent("""
         print("a line")
         raise BrokenPipeError(32, "Broken pipe")
 
-    for name, main in (("flood", flood), ("pipe-elsewhere", pipe_elsewhere)):
+    def progress(argv):  # lines through a rich progress bar's console on stdout, as `eval` prints
+        from rich.console import Console
+        from rich.progress import Progress
+
+        with Progress(console=Console()) as bar:
+            for _ in range(100_000):
+                bar.console.print("x" * 50, highlight=False)
+
+    for name, main in (("flood", flood), ("pipe-elsewhere", pipe_elsewhere), ("progress", progress)):
         sys.modules[name] = types.SimpleNamespace(main=main)
         cli.COMMANDS[name] = (name, "")
     sys.exit(cli.main(sys.argv[1:]))
@@ -52,6 +60,28 @@ def test_a_reader_that_stops_early_ends_the_command_quietly():
     child.stdout.close()
     assert child.wait(timeout=60) == 141
     assert child.stderr.read() == b""
+
+
+def test_a_reader_that_stops_early_ends_a_progress_bar_quietly_too():
+    # rich meets the gone reader by exiting 1 itself: `liquidgs experiment run SPEC | head` ends as `head` expects.
+    child = subprocess.Popen([sys.executable, "-c", _CHILD, "progress"], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    assert child.stdout.readline() == b"x" * 50 + b"\n"
+    child.stdout.close()
+    assert child.wait(timeout=60) == 141
+    assert child.stderr.read() == b""
+
+
+def test_training_into_a_pipe_closed_at_once_exits_141(tmp_path):
+    """`liquidgs train ... 2>&1 | true`: the progress bar's stderr is the pipe whose reader has gone."""
+    from liquidgs.data import generate_synthetic
+
+    scene = generate_synthetic("spinner", tmp_path / "s", size=16, frames=8) / "dnerf"
+    args = ["--data", str(scene), "--out", str(tmp_path / "run"), "--preset", "tiny", "--iterations", "10",
+            "--warmup", "2", "--init-points", "100", "--eval.start", "10", "--eval.fps-frames", "1"]  # fmt: skip
+    child = subprocess.Popen([sys.executable, "-m", "liquidgs.cli", "train", *args], stdout=subprocess.PIPE,
+                             stderr=subprocess.STDOUT)  # fmt: skip
+    child.stdout.close()
+    assert child.wait(timeout=300) == 141
 
 
 def test_a_broken_pipe_that_is_not_standard_output_is_still_an_error():

@@ -96,3 +96,78 @@ def test_a_wrong_mask_is_one_line_naming_its_file(refined_run, tmp_path, capsys,
     assert f"{tmp_path / 'masks' / names[0]}.png" in line
     assert ("mask is 20x24, view" in line) if fault == "size" else ("no mask for view" in line)
     assert not (run / "eval.json").exists()
+
+
+def _mask_images(folder: Path, scene: Path, draw) -> list[str]:
+    """One mask per test view, `draw(index, height, width)` giving its image array."""
+    folder.mkdir()
+    views = load_dataset(DataConfig(path=scene)).test
+    for i, view in enumerate(views):
+        Image.fromarray(draw(i, view.camera.height, view.camera.width)).save(folder / f"{view.name}.png")
+    return [view.name for view in views]
+
+
+def _left_third(height: int, width: int) -> np.ndarray:
+    mask = np.zeros((height, width), np.uint8)
+    mask[:, : width // 3] = 255
+    return mask
+
+
+def test_one_empty_view_is_legal_but_a_set_empty_in_every_view_is_one_line_naming_the_folder(refined_run, tmp_path,
+                                                                                              capsys):  # fmt: skip
+    """The subject may leave the frame: that view adds nothing inside, the others' pixels are pooled. A
+    set with no pixel inside in any view (or none outside) leaves a region nothing to score: refused."""
+    run, scene = refined_run
+    _mask_images(tmp_path / "one", scene, lambda i, h, w: np.zeros((h, w), np.uint8) if i == 0 else _left_third(h, w))
+    assert cli(["eval", "--run", str(run), "--mask", str(tmp_path / "one")]) == 0
+    masked = json.loads((run / "eval.json").read_text())["masked"]
+    views = len(load_dataset(DataConfig(path=scene)).test)
+    assert masked["inside"]["share"] == pytest.approx((views - 1) / views * 8 / 24)
+    assert masked["inside"]["psnr"] > 5 and masked["outside"]["psnr"] > 5
+    for value, words in ((0, "every mask is empty (no nonzero pixel in any view): nothing inside to score"),
+                         (255, "every mask covers its whole view: nothing outside to score")):  # fmt: skip
+        (run / "eval.json").unlink(missing_ok=True)
+        folder = tmp_path / f"all-{value}"
+        _mask_images(folder, scene, lambda i, h, w, value=value: np.full((h, w), value, np.uint8))
+        capsys.readouterr()
+        assert cli(["eval", "--run", str(run), "--mask", str(folder)]) == 2
+        assert one_line_error(capsys) == f"liquidgs eval: error: {folder}: --mask: {words}"
+        assert not (run / "eval.json").exists()
+
+
+def test_a_mask_in_alpha_alone_is_read_from_alpha(refined_run, tmp_path):
+    """An RGBA mask whose colour is flat white and whose alpha holds the subject: the alpha is the mask,
+    scored as the same mask in grey."""
+    run, scene = refined_run
+    _mask_images(tmp_path / "grey", scene, lambda i, h, w: _left_third(h, w))
+    assert cli(["eval", "--run", str(run), "--mask", str(tmp_path / "grey")]) == 0
+    grey = json.loads((run / "eval.json").read_text())["masked"]
+
+    def alpha_only(i, h, w):
+        rgba = np.full((h, w, 4), 255, np.uint8)
+        rgba[..., 3] = _left_third(h, w)
+        return rgba
+
+    _mask_images(tmp_path / "alpha", scene, alpha_only)
+    assert cli(["eval", "--run", str(run), "--mask", str(tmp_path / "alpha")]) == 0
+    alpha = json.loads((run / "eval.json").read_text())["masked"]
+    assert {r: alpha[r] for r in ("inside", "outside")} == {r: grey[r] for r in ("inside", "outside")}
+
+
+def test_a_mask_whose_colour_and_alpha_disagree_is_one_line_naming_its_file(refined_run, tmp_path, capsys):
+    run, scene = refined_run
+    (run / "eval.json").unlink(missing_ok=True)
+
+    def disagreeing(i, h, w):
+        rgba = np.zeros((h, w, 4), np.uint8)
+        rgba[..., :3] = _left_third(h, w)[..., None]  # the left third in colour
+        rgba[:, -w // 3 :, 3] = 255  # the right third in alpha
+        return rgba
+
+    names = _mask_images(tmp_path / "masks", scene, disagreeing)
+    capsys.readouterr()
+    assert cli(["eval", "--run", str(run), "--mask", str(tmp_path / "masks")]) == 2
+    assert one_line_error(capsys) == (f"liquidgs eval: error: {tmp_path / 'masks' / names[0]}.png: --mask: its grey "
+                                      "level and its alpha channel mark different pixels (keep the mask in one of "
+                                      "them, the other one flat)")  # fmt: skip
+    assert not (run / "eval.json").exists()

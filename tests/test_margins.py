@@ -326,8 +326,27 @@ def test_a_malformed_eval_json_is_one_line_naming_it(tmp_path, capsys):
     assert one_line_error(capsys) == f"{error}' must be an object with inside, outside"
     broken.write_text(json.dumps({"masked_aligned": {"inside": {"psnr": 20.0}, "outside": {"psnr": "?", "share": 1}}}))
     assert cli(["experiment", "report", str(directory)]) == 2
-    assert one_line_error(capsys) == f"{error}.inside' must be an object with numbers psnr, share"
+    assert one_line_error(capsys) == f"{error}.inside' must be an object with numbers psnr (or null), share"
     assert not (directory / "report" / "report.md").exists()
+
+
+def test_a_run_whose_masks_leave_a_region_empty_is_n_a_in_its_columns_not_a_refusal(tmp_path, capsys):
+    """eval.json written before such mask sets were refused: a region's psnr null. The report is written;
+    that run's cells say n/a, with a note saying why, and the margins use the runs that have the score."""
+    directory = refined_clips(tmp_path)
+    empty = directory / "clips" / "b" / "mlp" / "s1" / "eval.json"
+    record = json.loads(empty.read_text())
+    record["masked_aligned"]["inside"].update(psnr=None, ssim=None, share=0.0)
+    record["masked"] = {**record["masked_aligned"], "outside": {"psnr": 31.5, "ssim": 0.9, "share": 1.0}}
+    empty.write_text(json.dumps(record))
+    assert cli(["experiment", "report", str(directory)]) == 0
+    text = (directory / "report" / "report.md").read_text()
+    assert ("clips-b-mlp-s1: its masks hold no subject pixel in any test view (eval.json's masked_aligned.inside.psnr "
+            "is null); its subject score is n/a") in text  # fmt: skip
+    row = next(line for line in text.splitlines() if line.startswith("| clips / b | D-3DGS (MLP) | 1 |"))
+    outside = 20.0 - 0.05 - 4 + SUBJECT_GAIN["b"][1]  # as refined_clips writes it, seed 1
+    assert row.endswith(f"| n/a | 31.50 | n/a | {outside:.2f} |"), row
+    assert "n/a: the run's masks leave that region without a pixel in every test view" in text
 
 
 # ----------------------------------------------------------------------------- the spec and a real run

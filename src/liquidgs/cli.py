@@ -5,7 +5,8 @@ that `liquidgs data check` does not pay for importing the trainer.
 
 Every failure a user can cause ends in one line on stderr and exit 2 (130 for Ctrl-C):
 LiquidGSError carries its own message; an OSError (read-only file system, a file where a
-folder is expected, permissions) is reported with the path it names.
+folder is expected, permissions) is reported with the path it names. A reader of the output that has
+gone (`| head`, progress bar included) ends the command quietly with 141, as SIGPIPE would.
 """
 
 from __future__ import annotations
@@ -44,17 +45,17 @@ def _os_error_line(err: OSError) -> str:
     return f"{where}: {err.strerror or err}"
 
 
-def _stdout_closed() -> bool:
-    """Whether the reader of standard output has gone (`liquidgs ... | head`). Then stdout is pointed
+def _reader_gone(stream) -> bool:
+    """Whether the reader of `stream` has gone (`liquidgs ... | head`). Then the stream is pointed
     at /dev/null, so that Python's own flush at exit does not fail again."""
     try:
         poller = select.poll()
-        poller.register(sys.stdout.fileno(), select.POLLOUT)
+        poller.register(stream.fileno(), select.POLLOUT)
         gone = any(events & select.POLLERR for _, events in poller.poll(0))
-    except (OSError, ValueError, AttributeError):  # stdout closed or not a file; no poll (Windows)
+    except (OSError, ValueError, AttributeError):  # closed or not a file; no poll (Windows)
         return False
     if gone:
-        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        os.dup2(os.open(os.devnull, os.O_WRONLY), stream.fileno())
     return gone
 
 
@@ -74,10 +75,17 @@ def main(argv: list[str] | None = None) -> int:
         print(f"liquidgs {name}: error: {one_line(str(err))}", file=sys.stderr)
         return 2
     except OSError as err:
-        if isinstance(err, BrokenPipeError) and _stdout_closed():  # as a shell command killed by SIGPIPE
+        if isinstance(err, BrokenPipeError) and _reader_gone(sys.stdout):  # as a shell command killed by SIGPIPE
             return 141
         print(f"liquidgs {name}: error: {one_line(_os_error_line(err))}", file=sys.stderr)
         return 2
+    except SystemExit as err:
+        # rich's Console meets a gone reader of its stream (the progress bar's, stdout or stderr) by
+        # pointing stdout at /dev/null and exiting 1 from inside the BrokenPipeError: the same 141.
+        if err.code == 1 and isinstance(err.__context__, BrokenPipeError):
+            _reader_gone(sys.stderr)
+            return 141
+        raise
     except KeyboardInterrupt as err:
         detail = f": {one_line(str(err))}" if str(err) else ""
         print(f"liquidgs {name}: interrupted{detail}", file=sys.stderr)

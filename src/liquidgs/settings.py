@@ -371,6 +371,26 @@ class ArgumentParser(argparse.ArgumentParser):
         raise ConfigError(message)
 
 
+def _looks_negative(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return text.startswith("-")
+
+
+def _negative_values_joined(argv: list[str], one_value: set[str]) -> list[str]:
+    """argv with `--flag -1e-3` written `--flag=-1e-3`: argparse takes a value that starts with '-'
+    for an option unless it reads as a plain negative number, and '-1e-3' or '-inf' do not."""
+    out: list[str] = []
+    for arg in argv:
+        if out and out[-1] in one_value and _looks_negative(arg):
+            out[-1] = f"{out[-1]}={arg}"
+        else:
+            out.append(arg)
+    return out
+
+
 def parse_flag_settings(cls, argv: list[str], prog: str) -> dict[str, Any]:
     """The settings the flags in argv give, as {dotted key: typed value}; only those given."""
     parser = ArgumentParser(prog=prog, add_help=False, allow_abbrev=False)
@@ -391,7 +411,9 @@ def parse_flag_settings(cls, argv: list[str], prog: str) -> dict[str, Any]:
                 continue
             nargs = None if items is None else "*" if items[-1] is Ellipsis else len(items)
             parser.add_argument(strings[0], dest=flag.key, nargs=nargs, default=argparse.SUPPRESS)
-    values = vars(parser.parse_args(argv))
+    one_value = {strings[0] for flag in flags if (strings := option_strings(flag)) and _strip(flag.hint) is not bool
+                 and _items(flag.hint) is None and _APPEND not in _markers(flag.hint)}  # fmt: skip
+    values = vars(parser.parse_args(_negative_values_joined(argv, one_value)))
     hints = {flag.key: (flag.hint, "--" + flag.flag) for flag in flags}
     settings = {}
     for key, value in values.items():

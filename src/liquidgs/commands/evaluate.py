@@ -49,10 +49,12 @@ class EvalArgs:
     quantize_8bit: bool | None = None
     device: str = "auto"
     mask: Path | None = None
-    """Folder of masks of the moving subject, <view name>.png at the view's size, nonzero inside (the
-    masks `data video --mask-dynamic` takes): scores inside and outside them, with the cameras as given.
-    `auto`: the scene's own motion masks (flow/<k>x/masks at the run's scale, made by `data video` or
-    `data flow`), checked against the frames they were computed from."""
+    """Folder of masks of the moving subject, <view name>.png at the view's size, nonzero grey level
+    inside (the masks `data video --mask-dynamic` takes); a mask whose grey level is flat marks the
+    subject by nonzero alpha, one whose grey and alpha both vary must agree. One view's mask may be
+    empty; every view's empty, or every pixel covered, is refused. Scores inside and outside them,
+    with the cameras as given. `auto`: the scene's own motion masks (flow/<k>x/masks at the run's
+    scale, made by `data video` or `data flow`), checked against the frames they were computed from."""
 
 
 def evaluate_run(args: EvalArgs) -> dict:

@@ -84,6 +84,8 @@ def export_run(args: ExportArgs, console: Console | None = None) -> list[Path]:
         raise ConfigError(f"--sequence must be between 0 and {MAX_SEQUENCE:,}, got {args.sequence:,}")
     if args.format != "ply" and args.time:
         raise ConfigError(f"--time writes single PLYs: it goes with --format ply, not {args.format}")
+    if args.format in ("splatv", "web") and args.sequence:  # their motion is continuous: no frames to count
+        raise ConfigError(f"--sequence has no effect with --format {args.format}: it sets the frames of ply and plyseq")
     if args.format == "plyseq" and args.sequence < 2:
         raise ConfigError("--format plyseq needs --sequence N, the number of frames (at least 2)")
     run = load_run(args.run, args.device)

@@ -28,7 +28,14 @@ from liquidgs.eval import describe_lpips
 from liquidgs.eval.collapse import below_background_note
 from liquidgs.fields.config import PRESET_NAMES
 from liquidgs.settings import parse_flag_settings, print_help, wants_help, with_settings
-from liquidgs.train.config import TrainConfig, differing_settings, load_yaml, preset_config, run_folder
+from liquidgs.train.config import (
+    TrainConfig,
+    check_given_settings,
+    differing_settings,
+    load_yaml,
+    preset_config,
+    run_folder,
+)
 from liquidgs.train.run import training_threads
 from liquidgs.train.run_folder import (
     CAMERAS_REFINED,
@@ -95,6 +102,7 @@ def resolve_config(argv: list[str]) -> tuple[TrainConfig, Path]:
             raise ConfigError("--data PATH is required")
         base = preset_config(flags.get("preset", "dnerf"), flags["data.path"])
     cfg = with_settings(base, flags, "liquidgs train")
+    check_given_settings(cfg, flags)
     if stored is not None:
         changed = [k for k in differing_settings(cfg, stored) if k != "iterations"]
         if changed:

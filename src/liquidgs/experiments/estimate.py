@@ -28,13 +28,17 @@ BACKWARD_FACTOR = 3
 class Estimate:
     seconds: float
     measured_runs: int
-    """Runs whose cost is a measured it/s; the others are FLOPs estimates."""
+    """Runs whose cost is a measured it/s; the others are FLOPs estimates or unmeasured."""
     sources: tuple[str, ...]
+    unmeasured_runs: int = 0
+    """Runs with neither a measured it/s nor field FLOPs (the static model): not in `seconds`."""
 
     def line(self, runs: int) -> str:
-        hours = self.seconds / 3600
         how = "; ".join(self.sources)
-        return f"GPU-time estimate for the {runs} runs to train: {hours:,.1f} GPU-hours ({how})"
+        if self.unmeasured_runs == runs:  # nothing was counted: no figure, rather than a 0.0 that reads as free
+            return f"GPU-time estimate for the {runs} runs to train: unmeasured ({how})"
+        hours = f"{self.seconds / 3600:,.1f} GPU-hours" + (" plus the unmeasured runs" if self.unmeasured_runs else "")
+        return f"GPU-time estimate for the {runs} runs to train: {hours} ({how})"
 
 
 def measured_rates(path: Path = GPU_RECORDS) -> dict[tuple[str, str], tuple[float, str]]:
@@ -65,7 +69,7 @@ def _field_flops(entry: RunEntry, cache: dict) -> int:
 
 def estimate(runs: list[RunEntry], rates: dict[tuple[str, str], tuple[float, str]] | None = None) -> Estimate:
     rates = measured_rates() if rates is None else rates
-    seconds, measured, gpus, cache = 0.0, 0, set(), {}
+    seconds, measured, unmeasured, gpus, cache = 0.0, 0, 0, set(), {}
     for entry in runs:
         iterations = int(entry.config["iterations"]) if entry.config else 0
         rate = rates.get((entry.preset, entry.field))
@@ -73,17 +77,24 @@ def estimate(runs: list[RunEntry], rates: dict[tuple[str, str], tuple[float, str
             seconds += iterations / rate[0]
             measured += 1
             gpus.add(rate[1])
+        elif _field_flops(entry, cache) == 0:  # the static model still trains its Gaussians: not free
+            unmeasured += 1
         else:
             flops = BACKWARD_FACTOR * _field_flops(entry, cache) * ASSUMED_GAUSSIANS * iterations
             seconds += flops / ASSUMED_FLOPS_PER_S
     sources = []
     if measured:
         sources.append(f"{measured} runs from measured it/s on {', '.join(sorted(gpus))}")
-    if measured < len(runs):
+    if unmeasured:
         sources.append(
-            f"{len(runs) - measured} runs from FLOPs, a lower bound: the field's forward + backward "
+            f"{unmeasured} runs unmeasured: a field without FLOPs (static) still trains its Gaussians, whose "
+            "rasteriser time this estimate does not model, and no GPU figure of it is measured yet"
+        )
+    if measured + unmeasured < len(runs):
+        sources.append(
+            f"{len(runs) - measured - unmeasured} runs from FLOPs, a lower bound: the field's forward + backward "
             f"({BACKWARD_FACTOR}x its forward FLOPs) on an assumed {ASSUMED_GAUSSIANS:,} Gaussians a step at an "
             f"assumed {ASSUMED_FLOPS_PER_S / 1e12:.1f} TFLOP/s (a quarter of an H200's fp32 peak); rasteriser, "
             "densification and evaluation not counted, no GPU figure measured yet"
         )
-    return Estimate(seconds, measured, tuple(sources))
+    return Estimate(seconds, measured, tuple(sources), unmeasured)

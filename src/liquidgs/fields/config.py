@@ -44,6 +44,21 @@ FIELD_ONLY_OPTIONS = {"grid_lr_scale": "hexplane"}
 """FieldOptions that one field alone reads (by its name): refused for every other field, and left
 out of the other fields' config identities (so theirs stay those of the runs made before)."""
 
+SDE_OPTIONS = ("noise", "lambda_schedule", "lambda_decay_steps", "adaptive_lambda", "lambda_floor", "solver_dt",
+               "ltc_leak")  # fmt: skip
+"""FieldOptions of the 'sde' field's noise variants, read by it alone."""
+
+
+def options_read(name: str) -> tuple[str, ...]:
+    """The FieldOptions field `name` reads (beside the options it registered): its family's sizes,
+    the liquid stack's dropout, the 'sde' field's noise variants, the options it alone owns."""
+    family = field_type(name).family
+    read = FAMILY_SIZES[family] if family is not None else ()
+    read += ("backbone_dropout",) if family == "liquid" else ()
+    read += SDE_OPTIONS if name == "sde" else ()
+    return read + tuple(key for key, owner in FIELD_ONLY_OPTIONS.items() if owner == name)
+
+
 PAPER_LAMBDA = 0.05
 """The paper's calibrated gate-noise level, used when an 'sde' config leaves lambda unset."""
 

@@ -28,6 +28,7 @@ from liquidgs.fields.config import (
     check_choice,
     default_lambda,
     field_options_class,
+    options_read,
     own_option_flags,
 )
 from liquidgs.fields.registry import check_recorded_field, field_record
@@ -321,6 +322,34 @@ def validate(cfg: TrainConfig) -> None:
     if not all(type(step) is int and 1 <= step <= _INT64_MAX for step in cfg.eval.also):
         raise ConfigError(f"eval.also must hold iterations >= 1, got {list(cfg.eval.also)}")
     cfg.field_config()  # the field's own rules, now that its name, preset and lambda are known
+
+
+_FIELD_OPTION_NAMES = frozenset(f.name for f in dataclasses.fields(FieldOptions))
+
+
+def check_given_settings(cfg: TrainConfig, given: typing.Iterable[str]) -> None:
+    """ConfigError for a setting given on the command line (dotted keys) that this run never reads: a
+    field option of another field, a motion term's setting where the motion terms are off. Only what
+    was given is refused: presets and specs set options for every field of a grid, and config.yml
+    keeps what it holds (its identity, and so its folder, unchanged)."""
+    data_format = known_format(cfg.data)
+    read = options_read(cfg.field)
+    for key in given:
+        group, _, name = key.partition(".")
+        if group == "field_options" and name in _FIELD_OPTION_NAMES and name not in read:
+            reads = f"reads {', '.join(read)}" if read else "reads no field options"
+            raise ConfigError(f"--field-options.{name.replace('_', '-')} has no effect on field '{cfg.field}' "
+                              f"(it {reads})")  # fmt: skip
+        if group == "motion" and name != "apply" and not motion_applies(cfg.motion, data_format, cfg.field):
+            if cfg.field == "static":
+                why = "the static field does not move Gaussians"
+            elif cfg.motion.apply == "off":
+                why = "--motion.apply is off"
+            elif data_format is None:
+                continue  # the scene's format is not known yet: the data's own check says why
+            else:
+                why = f"--motion.apply auto is off for {data_format} data (on for captures)"
+            raise ConfigError(f"--motion.{name.replace('_', '-')} has no effect: {why}, so no motion term is trained")
 
 
 # Settings that change where or how a run executes, not what it computes.

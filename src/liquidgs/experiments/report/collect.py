@@ -71,7 +71,8 @@ class RunRecord:
         """The labelled second scores: the final test split with test cameras aligned to the scene
         (results.json's final_aligned, runs that refine), and `liquidgs eval --mask`'s inside / outside
         scores (eval.json's masked, cameras as given, and masked_aligned, test cameras aligned); None
-        where the run has none."""
+        where the run has none. A region's psnr is null where its masks leave it no pixel (an eval.json
+        written before such mask sets were refused): the tables say n/a there."""
         aligned = self.results.get("final_aligned") or None
         eval_path = self.folder / EVAL
         evaluation = _read_json(eval_path, EVAL) if eval_path.is_file() else {}
@@ -87,9 +88,10 @@ class RunRecord:
         for what, record in (("masked", masked), ("masked_aligned", masked_aligned)):
             for region in regions if record is not None else ():
                 scores = record[region]
-                if not (isinstance(scores, dict) and all(_is_number(scores.get(k)) for k in ("psnr", "share"))):
+                if not (isinstance(scores, dict) and _is_number(scores.get("share"))
+                        and (scores.get("psnr") is None or _is_number(scores["psnr"]))):  # fmt: skip
                     raise LiquidGSError(
-                        f"{eval_path}: field '{what}.{region}' must be an object with numbers psnr, share"
+                        f"{eval_path}: field '{what}.{region}' must be an object with numbers psnr (or null), share"
                     )
         return aligned, masked, masked_aligned
 

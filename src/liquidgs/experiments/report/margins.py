@@ -167,6 +167,9 @@ def collect_scores(collection: Collection, device: str) -> tuple[list[RunScores]
                     "subject": masked_aligned["inside"]["psnr"] if masked_aligned else None}  # fmt: skip
         if masked_aligned:
             shares.setdefault(key, {})["subject"] = masked_aligned["inside"]["share"]
+            if recorded["subject"] is None:
+                notes.append(f"{run.entry.name}: its masks hold no subject pixel in any test view (eval.json's "
+                             "masked_aligned.inside.psnr is null); its subject score is n/a")  # fmt: skip
         out.append(RunScores(*key, run.entry.field, run.entry.seed, {"whole": whole, **scores, **recorded}))
     return out, shares, notes
 

@@ -152,6 +152,10 @@ def _score(value) -> str:
     return "-" if value is None else printed(value, 2)
 
 
+NO_PIXELS = "n/a"
+"""The cell of a masked region with no pixel in any test view (its psnr null)."""
+
+
 def _second_scores_section(collection: Collection, md: list[str]) -> None:
     """Aligned-camera and masked scores, each in its own labelled column beside the given-camera
     score, one row per run that has either; nothing when no run has them."""
@@ -160,14 +164,19 @@ def _second_scores_section(collection: Collection, md: list[str]) -> None:
                         "PSNR inside masks (eval, as given)", "PSNR outside masks (eval, as given)",
                         "PSNR inside masks (eval, aligned)", "PSNR outside masks (eval, aligned)"])  # fmt: skip
     protocols: set[str] = set()
+    empty = False
     for run in collection.finished:
         aligned, masked, masked_aligned = run.second_scores()
         if aligned is None and masked is None:
             continue
         if aligned is not None:
             protocols.add(str(aligned.get("cameras", "")))
-        regions = [_score((record or {}).get(region, {}).get("psnr"))
-                   for record in (masked, masked_aligned) for region in ("inside", "outside")]  # fmt: skip
+        regions = []
+        for record in (masked, masked_aligned):
+            for region in ("inside", "outside"):
+                blank = record is not None and record[region]["psnr"] is None  # masks with no pixel there
+                empty |= blank
+                regions.append(NO_PIXELS if blank else _score((record or {}).get(region, {}).get("psnr")))
         table.add(f"{run.entry.dataset} / {run.entry.scene}", "", [
             run.method.label, str(run.entry.seed), _score(run.results["final"]["psnr"]),
             _score(aligned and aligned["psnr"]), "-" if aligned is None else printed(aligned["ssim"], 4), *regions,
@@ -181,6 +190,9 @@ def _second_scores_section(collection: Collection, md: list[str]) -> None:
            "outside the per-view masks of the moving subject, with the test cameras as given and (runs that refine) "
            "aligned; a dash where the run has none.", "",
            table.to_markdown()]  # fmt: skip
+    if empty:
+        md += ["", f"{NO_PIXELS}: the run's masks leave that region without a pixel in every test view, so it has "
+               "no score there (eval.json's psnr is null)."]  # fmt: skip
 
 
 def _spread_section(scores: DatasetScores, md: list[str]) -> None:
