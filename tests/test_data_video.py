@@ -406,7 +406,7 @@ def test_the_flow_loss_trains_on_a_capture_with_flow_and_is_one_line_without(vid
     )
     assert code == 0, stderr
     assert "weight: 0.02" in (tmp_path / "flow" / "config.yml").read_text()
-    for data, scale, message in ((out, "2", f"no optical flow at this scale; compute it: liquidgs data flow {out}"),
+    for data, scale, message in ((out, "2", f"no optical flow at this scale; compute them: liquidgs data flow {out}"),
                                  (puppet_scene, "1", "the optical-flow loss needs a capture with flow")):  # fmt: skip
         code, _, stderr = run_cli(
             ["train", "--data", str(data), "--downscale", scale, *flags, "--out", str(tmp_path / "x")]

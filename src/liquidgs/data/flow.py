@@ -417,16 +417,19 @@ AUTO_MASKS = "auto"
 def scene_motion_masks(scene: Path, views: list[Frame]) -> Path:
     """flow/<k>x/masks of `scene` at the scale `views` were read at, checked first (missing or stale:
     one line)."""
-    factor = image_scale(views)
+    return checked_flow_folder(scene, image_scale(views), "motion masks") / MASKS_FOLDER
+
+
+def checked_flow_folder(scene: Path, factor: int, what: str) -> Path:
+    """flow/<factor>x of `scene`, refused in one line where it is missing (naming the command that
+    makes it) or stale."""
     folder = flow_folder(scene, factor)
     if not (folder / FLOW_FILE).is_file():
-        raise DataError(
-            folder, f"no motion masks at this scale; compute them: liquidgs data flow {scene} --downscale {factor}"
-        )
+        raise DataError(folder, f"no {what} at this scale; compute them: liquidgs data flow {scene} --downscale {factor}")
     problems = check_flow(scene, factor)
     if problems:
         raise LiquidGSError(problems[0])
-    return folder / MASKS_FOLDER
+    return folder
 
 
 @dataclass
@@ -443,14 +446,7 @@ class FlowPair:
 
 def read_flow_pairs(scene: Path, factor: int) -> list[FlowPair]:
     """flow/<factor>x's pairs of `scene`, checked first (missing or stale: one line)."""
-    folder = flow_folder(scene, factor)
-    if not (folder / FLOW_FILE).is_file():
-        raise DataError(
-            folder, f"no optical flow at this scale; compute it: liquidgs data flow {scene} --downscale {factor}"
-        )
-    problems = check_flow(scene, factor)
-    if problems:
-        raise LiquidGSError(problems[0])
+    folder = checked_flow_folder(scene, factor, "optical flow")
     pairs = []
     for first, second in json.loads((folder / FLOW_FILE).read_text())["pairs"]:
         with np.load(folder / PAIRS_FOLDER / f"{first}--{second}.npz") as data:
