@@ -425,7 +425,9 @@ def checked_flow_folder(scene: Path, factor: int, what: str) -> Path:
     makes it) or stale."""
     folder = flow_folder(scene, factor)
     if not (folder / FLOW_FILE).is_file():
-        raise DataError(folder, f"no {what} at this scale; compute them: liquidgs data flow {scene} --downscale {factor}")
+        raise DataError(
+            folder, f"no {what} at this scale; compute them: liquidgs data flow {scene} --downscale {factor}"
+        )
     problems = check_flow(scene, factor)
     if problems:
         raise LiquidGSError(problems[0])
