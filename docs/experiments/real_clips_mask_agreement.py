@@ -19,7 +19,7 @@ BOXES = Path(__file__).with_name("real-clips-boxes.json")
 def agreement(scene: Path, entry: dict) -> dict:
     width, height = entry["size"]
     masks = scene / "flow" / f"{entry['downscale']}x" / "masks"
-    inside = masked = covered = box_area = total = 0
+    inside = masked = box_area = total = 0
     for view, (x0, y0, x1, y1) in entry["boxes"].items():
         mask = np.asarray(Image.open(masks / f"{view}.png")) > 0
         if mask.shape != (height, width):
@@ -40,8 +40,9 @@ def agreement(scene: Path, entry: dict) -> dict:
 
 def main(scenes: Path) -> None:
     for clip, entry in json.loads(BOXES.read_text())["clips"].items():
-        if not (scenes / clip).is_dir():
-            print(f"{clip}: no scene at {scenes / clip}")
+        masks = scenes / clip / "flow" / f"{entry['downscale']}x" / "masks"
+        if not masks.is_dir():
+            print(f"{clip}: no motion masks at {masks} (liquidgs data flow {scenes / clip})")
             continue
         result = agreement(scenes / clip, entry)
         inside = "n/a (nothing masked)" if result["inside_boxes"] is None else f"{100 * result['inside_boxes']:.0f}%"

@@ -36,6 +36,7 @@ from __future__ import annotations
 import hashlib
 import json
 import time
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -237,7 +238,9 @@ def _neighbours(frame: Frame, train: list[Frame]) -> list[Frame]:
 
 
 def _load_scene(scene: Path, downscale: int | None) -> SceneDataset:
-    return load_dataset(DataConfig(path=Path(scene), format="nerfies", downscale=downscale, cache_images=0))
+    with warnings.catch_warnings():  # what training must hear of (distortion, a fixed camera) is not flow's
+        warnings.simplefilter("ignore")
+        return load_dataset(DataConfig(path=Path(scene), format="nerfies", downscale=downscale, cache_images=0))
 
 
 def scene_image_size(scene: Path) -> tuple[int, int]:
