@@ -415,6 +415,18 @@ def test_the_flow_loss_trains_on_a_capture_with_flow_and_is_one_line_without(vid
         assert not (tmp_path / "x").exists()
 
 
+def test_flow_at_a_scale_without_its_own_rgb_folder_is_named_by_that_scale(video_scene, tmp_path):
+    """rgb/1x area-averaged by 3 (there is no rgb/3x): flow/3x, at a third of the size; it used to be
+    written as flow/1x, the folder the frames were read from."""
+    import shutil
+
+    scene = Path(shutil.copytree(video_scene[0], tmp_path / "scene", ignore=shutil.ignore_patterns("flow")))
+    assert run_cli(["data", "flow", str(scene), "--downscale", "3"])[0] == 0
+    width, height = json.loads((scene / "camera" / "000000.json").read_text())["image_size"]
+    assert [p.name for p in (scene / "flow").iterdir()] == ["3x"]
+    assert json.loads((scene / "flow" / "3x" / "flow.json").read_text())["size"] == [width // 3, height // 3]
+
+
 def test_flow_needs_two_train_frames_and_refuses_other_layouts(video_scene, tmp_path, puppet_scene):
     import shutil
 

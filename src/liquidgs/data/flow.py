@@ -46,7 +46,7 @@ import numpy as np
 from liquidgs.atomic import build_atomically, write_json_atomic
 from liquidgs.cameras import Camera
 from liquidgs.data.loading import load_dataset
-from liquidgs.data.nerfies import camera_path
+from liquidgs.data.nerfies import RGB_FOLDER, camera_path, read_camera
 from liquidgs.data.scene import DataConfig, Frame, SceneDataset
 from liquidgs.errors import DataError, LiquidGSError
 
@@ -217,12 +217,21 @@ def _sources(dataset: SceneDataset, frames: list[Frame]) -> dict[str, str]:
     return files
 
 
-def image_scale(frames: list[Frame]) -> int:
-    """k of the rgb/<k>x folder the frames were read from."""
-    folders = {frame.image_path.parent.name for frame in frames}
-    if len(folders) != 1 or not next(iter(folders)).endswith("x") or not next(iter(folders))[:-1].isdigit():
-        raise LiquidGSError(f"optical flow reads a Nerfies-layout scene (rgb/<k>x/<id>.png); got {sorted(folders)}")
-    return int(next(iter(folders))[:-1])
+def image_scale(scene: Path, frames: list[Frame]) -> int:
+    """k of the scale the frames were read at (1/k of the camera files' size: rgb/<k>x, or a coarser
+    scale area-averaged from a finer folder), the same for all of them."""
+    scales = set()
+    for frame in frames:
+        camera_file = camera_path(Path(scene), frame.name)
+        if frame.image_path.parent.parent.name != RGB_FOLDER or not camera_file.is_file():
+            raise LiquidGSError(
+                f"optical flow reads a Nerfies-layout scene (rgb/<k>x/<id>.png); {frame.image_path} is not"
+            )
+        full_width = read_camera(camera_file).image_size[0]
+        scales.add(round(full_width / frame.camera.width))
+    if len(scales) != 1:
+        raise DataError(scene, f"frames read at several scales {sorted(scales)}: optical flow needs one")
+    return scales.pop()
 
 
 def _time_order(frames: list[Frame]) -> list[Frame]:
@@ -264,7 +273,7 @@ def compute_scene_flow(scene: Path, downscale: int | None, log: Log | None = Non
     sizes = {(f.camera.width, f.camera.height) for f in everything}
     if len(sizes) != 1:
         raise DataError(scene, f"frames of mixed sizes {sorted(sizes)}: optical flow needs one size")
-    factor = image_scale(everything)
+    factor = image_scale(scene, everything)
     width, height = sizes.pop()
     points = dataset.points.double().numpy() if dataset.points is not None else None
     out = flow_folder(scene, factor)
@@ -420,7 +429,7 @@ AUTO_MASKS = "auto"
 def scene_motion_masks(scene: Path, views: list[Frame]) -> Path:
     """flow/<k>x/masks of `scene` at the scale `views` were read at, checked first (missing or stale:
     one line)."""
-    return checked_flow_folder(scene, image_scale(views), "motion masks") / MASKS_FOLDER
+    return checked_flow_folder(scene, image_scale(scene, views), "motion masks") / MASKS_FOLDER
 
 
 def checked_flow_folder(scene: Path, factor: int, what: str) -> Path:

@@ -188,7 +188,7 @@ class Trainer:
                 f"flow.weight: the optical-flow loss needs a capture with flow; {self.cfg.data.path} is D-NeRF"
             )
         # At the scale of the images trained on: flow.json's hashes tie it to those very files.
-        pairs = read_flow_pairs(self.cfg.data.path, image_scale(self.dataset.train))
+        pairs = read_flow_pairs(self.cfg.data.path, image_scale(self.cfg.data.path, self.dataset.train))
         names = [frame.name for frame in self.dataset.train]
         return FlowLoss(self.cfg.flow.weight, pairs, names, self.device, self.cfg.backend)
 
