@@ -1,5 +1,5 @@
 # Two commands do all set-up on a fresh machine:
-#   make demo   - train MLP / CfC / SDE-LNN on the built-in synthetic scene, write a report
+#   make demo   - train static / MLP / CfC / SDE-LNN / HexPlane on the built-in synthetic scene, write a report
 #   make test   - the whole test suite (what .ci/run calls)
 #   make docs   - the documentation site (docs/, mkdocs.yml) into build/site, offline, warnings as
 #                 errors; installs the `docs` extra into .venv first (CI runs it after make test)

@@ -19,15 +19,15 @@ import sys
 from liquidgs.errors import LiquidGSError, one_line
 
 COMMANDS: dict[str, tuple[str, str]] = {
-    "demo": ("liquidgs.commands.demo", "synthetic scene -> train MLP, CfC, SDE-LNN -> report"),
+    "demo": ("liquidgs.commands.demo", "synthetic scene -> train static, MLP, CfC, SDE-LNN, HexPlane -> report"),
     "train": ("liquidgs.commands.train", "train a dynamic scene with a deformation field"),
     "eval": ("liquidgs.commands.evaluate", "re-evaluate a run's checkpoint"),
     "render": ("liquidgs.commands.render", "test renders, depth, time sweep, orbit video"),
     "export": ("liquidgs.commands.export", "canonical PLY, PLY at a time, PLY sequence"),
     "bake": ("liquidgs.commands.bake", "distil a run's field into keyframed motion that renders without it"),
     "view": ("liquidgs.commands.view", "browser viewer: scrub time, compare runs, record camera paths"),
-    "data": ("liquidgs.commands.data", "generate synthetic scenes, validate dataset folders"),
-    "bench": ("liquidgs.commands.bench", "benchmarks that print JSON (raster, fields, train)"),
+    "data": ("liquidgs.commands.data", "synthetic scenes, checks, downloads, your own video, optical flow"),
+    "bench": ("liquidgs.commands.bench", "benchmarks that print JSON (raster, fields, train, bake, gpu, acceptance)"),
     "experiment": ("liquidgs.commands.experiment", "grids of runs (local or Ray) and the paper's tables"),
 }
 

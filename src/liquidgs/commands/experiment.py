@@ -21,6 +21,7 @@ import tyro
 from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
+from liquidgs.commands.progress import progress_for
 from liquidgs.errors import ConfigError
 from liquidgs.experiments import BUILTIN_SPECS, expand, generate_scenes, load_spec, read_manifest, write_manifest
 from liquidgs.experiments.estimate import estimate
@@ -104,16 +105,22 @@ def run(args: RunArgs, console: Console) -> int:
         f"-> {experiment.directory}"
     )
     outcomes: list[RunOutcome] = []
-    with Progress(
-        TextColumn("[bold]{task.description}"),
-        BarColumn(),
-        TextColumn("{task.completed}/{task.total} runs"),
-        TimeElapsedColumn(),
-        TextColumn("ETA"),
-        TimeRemainingColumn(),
-        TextColumn("{task.fields[last]}"),
-        console=console,
-    ) as progress:
+    def live() -> Progress:
+        return Progress(
+            TextColumn("[bold]{task.description}"),
+            BarColumn(),
+            TextColumn("{task.completed}/{task.total} runs"),
+            TimeElapsedColumn(),
+            TextColumn("ETA"),
+            TimeRemainingColumn(),
+            TextColumn("{task.fields[last]}"),
+            console=console,
+        )
+
+    def line(task: dict) -> str:
+        return f"{task['description']}: {task['completed']}/{task['total']} runs  {task['last']}".rstrip()
+
+    with progress_for(console, live, line, every_update=True) as progress:
         task = progress.add_task(spec.name, total=len(experiment.runs), last="")
 
         def record(outcome: RunOutcome) -> None:

@@ -110,13 +110,17 @@ class FieldOptions:
     backbone_layers: int | None = None
     """Backbone layers of each cell (at most 32)."""
     activation: Literal[ACTIVATIONS] | None = None  # type: ignore[valid-type]
+    """Backbone activation of each CfC cell (None: the preset's)."""
     backbone_dropout: float = 0.0
+    """Dropout between each cell's backbone layers while training."""
 
     # Noise variants of the 'sde' field (beyond the paper).
     noise: Literal[NOISE_SITES] = "gate"  # type: ignore[valid-type]
     """Where the noise enters: the time gate (paper), an exact Ornstein-Uhlenbeck hidden-state
     transition, or the same hidden-state SDE integrated by torchsde (Euler-Maruyama)."""
     lambda_schedule: Literal[SCHEDULES] = "constant"  # type: ignore[valid-type]
+    """How lambda changes over training: constant (paper), or annealed to 0 by lambda_decay_steps
+    (linear or cosine)."""
     lambda_decay_steps: int = 0
     """Training step at which a linear / cosine schedule has brought lambda to 0."""
     adaptive_lambda: bool = False

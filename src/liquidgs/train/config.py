@@ -86,15 +86,23 @@ class TrainConfig:
     """Deformation field: static (no deformation, the floor every field must beat), mlp, cfc, sde,
     or any other registered field (liquidgs.fields.register; an unknown name lists them)."""
     preset: PresetName = "dnerf"
-    lambda_: Annotated[float | None, tyro.conf.arg(name="lambda")] = None
-    """Gate-noise level of the 'sde' field (default 0.05, the paper's calibrated value)."""
+    lambda_: Annotated[
+        float | None, tyro.conf.arg(name="lambda", metavar="FLOAT", help_behavior_hint="(default: 0.05 for sde)")
+    ] = None
+    """Gate-noise level of the 'sde' field (the paper's calibrated 0.05 unless given)."""
     iterations: int = 40_000
+    """Training iterations (the preset's unless given)."""
     seed: int = 0
+    """Seed of the initial points, the camera order and the field's weights."""
     out: Path | None = None
     """Run folder (default outputs/<scene>/<field>/<config hash>)."""
     resume: bool = False
+    """Continue the run in --out from its checkpoint (only --iterations may change, to extend it)."""
     device: str = "auto"
+    """auto (CUDA where torch sees a GPU, else the CPU), cpu, cuda or cuda:N."""
     backend: Literal[BACKENDS] = "auto"  # type: ignore[valid-type]
+    """Rasteriser: auto (gsplat on CUDA, else the compiled CPU kernels, else torch), torch (the
+    portable reference), cpu or gsplat."""
     warmup: int = 3000
     """Iterations with the deltas forced to zero (static 3DGS)."""
     sh_degree: int = 3

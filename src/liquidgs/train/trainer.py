@@ -119,6 +119,12 @@ class TrainState:
     evaluations: list[dict] = field(default_factory=list)
 
 
+def _say(progress, line: str) -> None:
+    """A line above the progress bar (or among the plain progress lines), where there is one."""
+    if progress is not None:
+        progress.console.print(line, highlight=False)
+
+
 class Trainer:
     def __init__(self, cfg: TrainConfig, run_dir: Path, dataset: SceneDataset | None = None):
         self.cfg = cfg
@@ -487,8 +493,10 @@ class Trainer:
                 )
             if step == cfg.iterations:
                 self.save_checkpoint()  # before finish() evaluates: a failing evaluation loses no training
+                _say(progress, f"training done; the final evaluation of {len(self.dataset.test)} test views starts")
                 break
             if self.is_eval_step(step):
+                _say(progress, f"evaluation at iteration {step} ({len(self.dataset.test)} test views)")
                 self.evaluate_and_record(step)
             if step % cfg.checkpoint_every == 0:
                 self.save_checkpoint()
