@@ -295,7 +295,8 @@ def test_bad_inputs_are_one_line_and_leave_nothing(pycolmap, tmp_path):
 def test_a_missing_pycolmap_is_one_line_with_the_install_command(tmp_path, monkeypatch):
     monkeypatch.setitem(sys.modules, "pycolmap", None)  # import pycolmap now raises ImportError
     code, _, stderr = run_cli(["data", "images", str(tmp_path), "--out", str(tmp_path / "o")])
-    assert code == 2 and "pip install 'liquidgs[colmap]'" in stderr and stderr.count("\n") == 1
+    assert "pip install pycolmap (or, in the clone, pip install -e '.[colmap]')" in stderr
+    assert code == 2 and stderr.count("\n") == 1
 
 
 @pytest.mark.slow

@@ -51,7 +51,9 @@ SEED = 0
 
 Log = Callable[[str], None]
 
-INSTALL_HINT = "pycolmap is not installed; install it with: pip install 'liquidgs[colmap]' (or: pip install pycolmap)"
+INSTALL_HINT = (
+    "pycolmap is not installed; install it with: pip install pycolmap (or, in the clone, pip install -e '.[colmap]')"
+)
 
 
 def import_pycolmap():

@@ -187,7 +187,8 @@ def import_ray():
         import ray
     except ImportError:
         raise ConfigError(
-            "--executor ray needs Ray, which is not installed: pip install 'liquidgs[ray]' (or pip install ray)"
+            "--executor ray needs Ray, which is not installed: "
+            "pip install ray (or, in the clone, pip install -e '.[ray]')"
         ) from None
     return ray
 
