@@ -303,6 +303,20 @@ def test_the_cli_reference_lists_every_flag_of_every_command():
         assert f"`{option}`" in reference, option
 
 
+def test_every_flag_of_every_command_says_what_it_does():
+    """Each flag's row in the command-line reference (built from the same help as --help) has a
+    description, and none is a type checker's comment."""
+    section, empty = "", []
+    for line in GENERATED["reference/cli.md"].splitlines():
+        if line.startswith("## "):
+            section = line[3:]
+        elif line.startswith("| `--"):
+            cells = [cell.strip() for cell in line.strip().strip("|").split("|")]
+            if not cells[-1] or "type: ignore" in cells[-1]:
+                empty.append(f"{section} {cells[0]}")
+    assert not empty, empty
+
+
 # An absolute path of the machine a page or report was written on (/tmp/..., /work/..., /root/...,
 # /home/...): meaningless to a reader elsewhere. After a space, a bracket, a quote, a backtick, `=` or `:`.
 MACHINE_PATH = re.compile(r"(?<![^\s(`'\"=:,])/(?:tmp|work|root|home)/")

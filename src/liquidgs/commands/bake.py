@@ -52,6 +52,7 @@ class BakeArgs:
     max_keyframes: int = BakeSettings.max_keyframes
     """Keyframes the doubling stops at, at most 1,025 (MAX_KEYFRAMES)."""
     device: str = "auto"
+    """auto (CUDA where torch sees a GPU, else the CPU), cpu, cuda or cuda:N."""
 
 
 def check_args(args: BakeArgs) -> Path:

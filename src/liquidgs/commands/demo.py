@@ -57,14 +57,18 @@ def demo_fields() -> tuple[str, ...]:
 @dataclass
 class DemoArgs:
     out: Path = Path("report")
+    """Folder for the report, its pictures, the runs (runs/) and their logs."""
     scene: str = DEFAULT_SYNTHETIC_SCENE
+    """Built-in synthetic scene (puppet, spinner or still)."""
     size: int = 64
     """Image width and height. 64 px rather than the tiny preset's 128: the time goes into
     iterations, which is what the fields need to learn the swinging limbs."""
     iterations: int = 2000
     """Training iterations per run; the tiny preset's schedule is stretched to them."""
     seed: int = 0
+    """Seed of every run."""
     device: str = "auto"
+    """auto (CUDA where torch sees a GPU, else the CPU), cpu, cuda or cuda:N."""
     parallel: int = dataclasses.field(default_factory=default_parallel)
     """Runs trained at the same time (default: one per CPU core, or one per GPU)."""
 

@@ -42,12 +42,17 @@ class EvalArgs:
     run: Path
     """Run folder written by `liquidgs train`."""
     split: Literal["test", "val", "train"] = "test"
+    """The split to score (val: D-NeRF's val views)."""
     lpips_backbone: Literal["vgg", "alex", "squeeze"] | None = None
     """Default: the backbone the run was trained with."""
     lpips_normalize: bool | None = None
+    """LPIPS input normalisation to [-1, 1] (default: as the run was trained)."""
     lpips_weights: Path | None = None
+    """LPIPS backbone weights file or folder (default: the run's, else $LIQUIDGS_LPIPS_WEIGHTS)."""
     quantize_8bit: bool | None = None
+    """Score renders quantised to 8 bits (default: as the run was trained)."""
     device: str = "auto"
+    """auto (CUDA where torch sees a GPU, else the CPU), cpu, cuda or cuda:N."""
     mask: Path | None = None
     """Folder of masks of the moving subject, <view name>.png at the view's size, nonzero grey level
     inside (the masks `data video --mask-dynamic` takes); a mask whose grey level is flat marks the

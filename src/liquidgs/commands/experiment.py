@@ -41,6 +41,7 @@ class RunArgs:
     out: Path | None = None
     """Experiment folder (default outputs/experiments/<spec name>)."""
     executor: Literal["local", "ray"] = "local"
+    """local: runs in processes on this machine (--parallel at a time); ray: on a Ray cluster (--ray-address)."""
     ray_address: str | None = None
     """An existing Ray cluster (e.g. 'auto' or 'ray://head:10001'); default: a local Ray instance."""
     parallel: int | None = None

@@ -49,6 +49,7 @@ from liquidgs.train.run_folder import source_comment
 @dataclass
 class ExportArgs:
     run: Path
+    """A run folder, or a baked scene (`liquidgs bake`)."""
     out: Path | None = None
     """Default: DIR/export."""
     time: list[float] = field(default_factory=list)
@@ -60,6 +61,7 @@ class ExportArgs:
     """ply: the PLYs above; plyseq: OUT/sequence.zip of --sequence PLYs; splatv: OUT/scene.splatv;
     web: OUT/web, a static folder that plays the scene in a browser."""
     device: str = "auto"
+    """auto (CUDA where torch sees a GPU, else the CPU), cpu, cuda or cuda:N."""
 
 
 MAX_SEQUENCE = 100_000

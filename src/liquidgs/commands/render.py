@@ -40,13 +40,17 @@ MAX_SAMPLES = 1024
 @dataclass
 class RenderArgs:
     run: Path
+    """A run folder, or a baked scene (`liquidgs bake`)."""
     out: Path | None = None
     """Default: DIR/renders."""
     sweep_frames: int = 48
+    """Frames of the time sweep (sweep.mp4), from one test camera over [0, 1]."""
     sweep_camera: int = 0
     """Index of the test camera the time sweep is seen from."""
     orbit_frames: int = 72
+    """Frames of the orbit around the scene (orbit.mp4)."""
     orbit_time: float = 0.5
+    """The time in [0, 1] the orbit shows."""
     fps: int = 24
     """Frames per second of the videos (1 to 240)."""
     uncertainty_samples: int = 0
@@ -55,6 +59,7 @@ class RenderArgs:
     camera_path: Path | None = None
     """A camera_path.json to render to video instead of the test views, sweep and orbit."""
     device: str = "auto"
+    """auto (CUDA where torch sees a GPU, else the CPU), cpu, cuda or cuda:N."""
 
 
 @torch.no_grad()

@@ -52,6 +52,7 @@ class ViewArgs:
     threads: int | None = None
     """Torch CPU threads for rendering (default: torch's own choice)."""
     device: str = "auto"
+    """auto (CUDA where torch sees a GPU, else the CPU), cpu, cuda or cuda:N."""
 
 
 def check_args(args: ViewArgs) -> None:

@@ -45,15 +45,17 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--json", action="store_true", help="one JSON object per line (default: a table)")
     parser.add_argument("--device", default="auto", help="cpu, cuda, cuda:N or auto (cuda when available)")
     parser.add_argument("--sizes", type=_csv(int), default=[20_000, 100_000], help="numbers of Gaussians")
-    parser.add_argument("--presets", type=_csv(str), default=list(PRESET_NAMES))
+    parser.add_argument(
+        "--presets", type=_csv(str), default=list(PRESET_NAMES), help="comma-separated presets to size the fields by"
+    )
     parser.add_argument("--fields", type=_csv(str), help="comma-separated (default: every registered field)")
     parser.add_argument("--variants", action="store_true", help="also: " + ", ".join(VARIANTS))
     parser.add_argument("--lambda", dest="lambda_", type=float, default=0.05, help="noise level of sde rows")
-    parser.add_argument("--warmup", type=int, default=1)
-    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--warmup", type=int, default=1, help="untimed passes first")
+    parser.add_argument("--repeats", type=int, default=3, help="timed passes per case (the fastest counts)")
     parser.add_argument("--max-seconds", type=float, default=1.0, help="stop repeating a case after this")
     parser.add_argument("--threads", type=int, default=0, help="torch intra-op threads (0: torch's default)")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seed", type=int, default=0, help="seed of the fields' weights and inputs")
     return parser
 
 

@@ -164,12 +164,12 @@ def machine_description(device: torch.device) -> str:
 def build_parser() -> argparse.ArgumentParser:
     parser = ArgumentParser(prog="liquidgs bench raster", description=__doc__.splitlines()[0])
     parser.add_argument("--json", action="store_true", help="print one JSON object per case (default: text)")
-    parser.add_argument("--backend", default="auto", choices=BACKENDS)
-    parser.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
+    parser.add_argument("--backend", default="auto", choices=BACKENDS, help="the rasteriser to time")
+    parser.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu", help="cpu or cuda[:N]")
     parser.add_argument("--cases", default=DEFAULT_CASES, help=f"comma-separated WxH/N (default {DEFAULT_CASES})")
     parser.add_argument("--tile-sizes", help="comma-separated (torch and cpu backends; default: the backend's)")
-    parser.add_argument("--repeats", type=int, default=5)
-    parser.add_argument("--warmup", type=int, default=1)
+    parser.add_argument("--repeats", type=int, default=5, help="timed passes per case (the fastest counts)")
+    parser.add_argument("--warmup", type=int, default=1, help="untimed passes first")
     parser.add_argument(
         "--dense",
         action="store_true",

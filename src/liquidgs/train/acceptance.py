@@ -58,14 +58,18 @@ def build_parser() -> argparse.ArgumentParser:
     parser = ArgumentParser(prog="liquidgs bench gpu", description=__doc__.splitlines()[0])
     parser.add_argument("--data", type=Path, required=True, help="scene folder (e.g. a D-NeRF scene at 800x800)")
     parser.add_argument("--budget-s", type=float, default=420.0, help="seconds of training (default 420)")
-    parser.add_argument("--preset", default="dnerf", choices=PRESET_NAMES)
+    parser.add_argument("--preset", default="dnerf", choices=PRESET_NAMES, help="the training preset")
     parser.add_argument("--field", default="mlp", help="a registered field (checked by TrainConfig)")
     parser.add_argument("--downscale", type=int, default=1, help="image downscale (default 1: full resolution)")
     parser.add_argument("--fps-frames", type=int, default=50, help="frames timed for the render FPS (default 50)")
-    parser.add_argument("--backend", default="gsplat", choices=("gsplat", "torch"),
-                        help="rasteriser: gsplat's CUDA kernels, or (plan B) our torch backend on CUDA")
+    parser.add_argument(
+        "--backend",
+        default="gsplat",
+        choices=("gsplat", "torch"),
+        help="rasteriser: gsplat's CUDA kernels, or (plan B) our torch backend on CUDA",
+    )
     parser.add_argument("--backend-label", default="", help="why this backend (the acceptance's plan B says)")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seed", type=int, default=0, help="the run's seed")
     parser.add_argument("--out", type=Path, help="run folder (default: a temporary folder)")
     parser.add_argument("--output", type=Path, default=DEFAULT_OUTPUT, help=f"JSON lines (default {DEFAULT_OUTPUT})")
     parser.add_argument("--dry-run", action="store_true", help="check the arguments and the scene, print the plan")

@@ -49,20 +49,23 @@ class _BenchParser(ArgumentParser):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = _BenchParser(prog="liquidgs bench train", description=__doc__.splitlines()[0],
-                          epilog="Any other flag of `liquidgs train` sets that setting of the timed run.")
+    parser = _BenchParser(
+        prog="liquidgs bench train",
+        description=__doc__.splitlines()[0],
+        epilog="Any other flag of `liquidgs train` sets that setting of the timed run.",
+    )
     parser.add_argument("--json", action="store_true", help="print one JSON object (default: a table)")
     parser.add_argument("--data", type=Path, help=f"scene folder (default: the built-in {DEFAULT_SYNTHETIC_SCENE})")
     parser.add_argument("--size", type=int, default=128, help="built-in scene's image size")
     parser.add_argument("--downscale", type=int, help="image downscale of --data")
-    parser.add_argument("--preset", default="tiny", choices=PRESET_NAMES)
+    parser.add_argument("--preset", default="tiny", choices=PRESET_NAMES, help="the training preset")
     parser.add_argument("--field", default="mlp", help="a registered field (checked by TrainConfig)")
-    parser.add_argument("--backend", default="auto", choices=BACKENDS)
-    parser.add_argument("--device", default="auto")
+    parser.add_argument("--backend", default="auto", choices=BACKENDS, help="the rasteriser")
+    parser.add_argument("--device", default="auto", help="auto, cpu, cuda or cuda:N")
     parser.add_argument("--from-step", type=int, default=700, help="untimed steps first (default 700)")
     parser.add_argument("--steps", type=int, default=300, help="timed steps (default 300)")
     parser.add_argument("--threads", type=int, default=0, help="torch intra-op threads (0: torch's default)")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seed", type=int, default=0, help="the run's seed")
     parser.add_argument("--output", type=Path, help="also append the JSON object as a line to this file")
     return parser
 

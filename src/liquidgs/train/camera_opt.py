@@ -53,9 +53,11 @@ class CameraRefineConfig:
     rotation_lr: float = 1e-3
     """Adam learning rate of the rotation (radians), decaying log-linearly to rotation_lr_final."""
     rotation_lr_final: float = 1e-5
+    """The rotation correction's learning rate at the end of training."""
     translation_lr: float = 1e-3
     """Adam learning rate of the translation, in units of the train cameras' extent."""
     translation_lr_final: float = 1e-5
+    """The translation correction's learning rate at the end of training."""
     lr_steps: int | None = None
     """Iterations of the decay (None: the run's)."""
     max_rotation_deg: float = 10.0

@@ -46,19 +46,31 @@ class OptimConfig:
     """Adam (eps 1e-15) learning rates of D-3DGS."""
 
     means_lr_init: float = 1.6e-4
+    """Learning rate of the Gaussians' positions at the start (times spatial_lr_scale)."""
     means_lr_final: float = 1.6e-6
+    """Learning rate of the positions after means_lr_steps (exponential decay)."""
     means_lr_steps: int = 30_000
+    """Iterations over which the position learning rate decays."""
     spatial_lr_scale: float = 5.0
     """D-3DGS hard-codes 5 (not the camera extent) as the position learning-rate scale."""
     sh0_lr: float = 0.0025
+    """Learning rate of the base (degree-0) colour."""
     shN_lr: float = 0.0025 / 20
+    """Learning rate of the higher SH coefficients."""
     opacities_lr: float = 0.05
+    """Learning rate of the opacities (logits)."""
     scales_lr: float = 0.005
+    """Learning rate of the scales (logs)."""
     quats_lr: float = 0.001
+    """Learning rate of the rotations (quaternions)."""
     field_lr_init: float = 8e-4
+    """Learning rate of the deformation field at the end of warm-up."""
     field_lr_final: float = 1.6e-6
+    """Learning rate of the field after field_lr_steps (exponential decay)."""
     field_lr_steps: int = 40_000
+    """Iterations over which the field's learning rate decays."""
     adam_eps: float = 1e-15
+    """Adam's epsilon for every parameter group (3DGS's 1e-15)."""
 
 
 @dataclass
@@ -66,9 +78,11 @@ class EvalConfig:
     start: int = 5000
     """First periodic evaluation (D-3DGS: 5k, 6k, 7k, then every 1k)."""
     every: int = 1000
+    """Iterations between periodic test evaluations after eval.start."""
     also: tuple[int, ...] = ()
     """Further evaluation iterations; the D-3DGS code's own list is --eval.start 10000 --eval.also 5000 6000 7000."""
     lpips_backbone: Literal["vgg", "alex", "squeeze"] = "vgg"
+    """LPIPS backbone: vgg (what D-3DGS reports), alex or squeeze."""
     lpips_normalize: bool = True
     """True: images scaled to [-1,1] as LPIPS expects. False: the D-3DGS reference's quirk ([0,1] fed in)."""
     lpips_weights: Path | None = None
@@ -76,6 +90,7 @@ class EvalConfig:
     quantize_8bit: bool = True
     """Score renders quantised to 8 bits, as the reference does (it scores PNGs written to disk)."""
     fps_frames: int = 25
+    """Test views rendered for the FPS figure (the first 5 are dropped as warm-up)."""
 
 
 @dataclass
@@ -86,6 +101,8 @@ class TrainConfig:
     """Deformation field: static (no deformation, the floor every field must beat), mlp, cfc, sde,
     or any other registered field (liquidgs.fields.register; an unknown name lists them)."""
     preset: PresetName = "dnerf"
+    """Schedule and field sizes: dnerf (D-NeRF, 40k iterations), nerfds (real captures, 20k, smoothed
+    time) or tiny (a CPU schedule of 1.5k)."""
     lambda_: Annotated[
         float | None, tyro.conf.arg(name="lambda", metavar="FLOAT", help_behavior_hint="(default: 0.05 for sde)")
     ] = None
@@ -106,18 +123,24 @@ class TrainConfig:
     warmup: int = 3000
     """Iterations with the deltas forced to zero (static 3DGS)."""
     sh_degree: int = 3
+    """Highest spherical-harmonics degree of the Gaussians' colours (0..3)."""
     sh_interval: int = 1000
+    """Iterations between two raises of the SH degree used, from 0 up to sh_degree."""
     ssim_weight: float = 0.2
+    """Weight of the D-SSIM term in the photometric loss (1 - w) L1 + w (1 - SSIM)."""
     init_points: int = 100_000
     """Random initial points in [-init_extent, init_extent]^3 (used when the data has no point cloud);
     at most 10,000,000."""
     init_extent: float = SCENE_BOUND
+    """Half-side of the cube the random initial points fill, where the scene has no point cloud."""
     smooth_time: bool = False
     """Annealed smooth training (D-3DGS, real data): t + N(0,1) * scale * s(i) after warm-up."""
     smooth_time_steps: int = 20_000
+    """Iterations over which the annealed time noise of smooth_time decays to 0."""
     smooth_time_scale: Literal["frames", "stack"] = "frames"
     """'frames': 1/N_frames as the paper says; 'stack': 1/(cameras left in the epoch stack) as its code does."""
     checkpoint_every: int = 5000
+    """Iterations between checkpoints (the last iteration is always checkpointed)."""
     divergence_drop_db: float = 10.0
     """Stop when the smoothed training PSNR falls this far below its best since the last scheduled
     disturbance (opacity reset, SH degree step, end of warm-up, densification burst)."""

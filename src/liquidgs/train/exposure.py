@@ -37,6 +37,7 @@ class ExposureConfig:
     lr: float = 1e-3
     """Adam learning rate of the gains and offsets, decaying log-linearly to lr_final over the run."""
     lr_final: float = 1e-5
+    """The exposure gain and offset's learning rate at the end of training."""
     max_change: float = 0.5
     """A gain or offset past this (in units of full brightness) ran away: training stops naming the frame."""
 

@@ -76,6 +76,7 @@ class MotionRegConfig:
     anchors: int = 2048
     """Gaussians the terms are averaged over each step (all when fewer)."""
     knn_every: int = 100
+    """Iterations between two searches of each Gaussian's nearest canonical neighbours."""
     fixed_sizes: bool = True
     """The field moves and turns Gaussians but does not resize them (Dynamic 3D Gaussians keeps sizes
     constant). A field that may resize Gaussians frame by frame fits what a frame shows from its

@@ -26,13 +26,17 @@ class DensifyConfig:
     gradient: Literal["absolute", "standard"] = "absolute"
     """'absolute' (AbsGS, the current reference code, threshold 0.0007) or 'standard' (0.0002)."""
     grad_threshold: float = 0.0007
+    """Mean screen-space position gradient above which a Gaussian is cloned or split."""
     start: int = 500
     """Densify and prune when step > start and step % interval == 0 ..."""
     stop: int = 15_000
     """... and step < stop (statistics are collected while step < stop)."""
     interval: int = 100
+    """Iterations between densification steps."""
     opacity_reset_interval: int = 3000
+    """Iterations between opacity resets (every opacity set to reset_opacity_to)."""
     prune_opacity: float = 0.005
+    """Gaussians below this opacity are pruned at each densification step."""
     percent_dense: float = 0.01
     """Clone if the largest scale <= percent_dense * extent, else split."""
     max_screen_radius: float = 20.0
@@ -42,6 +46,7 @@ class DensifyConfig:
     split_count: int = 2
     """Children of a split Gaussian; their scales are the parent's / (0.8 x split_count), as D-3DGS."""
     reset_opacity_to: float = 0.01
+    """The opacity an opacity reset sets every Gaussian to (at most)."""
     max_per_pixel: float = 0.0
     """Cap on the Gaussians densification may grow to, per pixel of a training image (0: no cap,
     as the reference). The thresholds above are the reference's for 800x800 images; at 162x90
