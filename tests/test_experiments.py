@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -444,7 +445,7 @@ def test_ray_missing_is_one_clear_line(monkeypatch, data_root, tmp_path):
 
     monkeypatch.setattr(builtins, "__import__", no_ray)
     experiment = expand(spec_from_dict(small_spec(), "s.yml"), data_root, tmp_path / "e")
-    with pytest.raises(ConfigError, match=r"pip install 'liquidgs\[ray\]'"):
+    with pytest.raises(ConfigError, match=re.escape("pip install ray (or, in the clone, pip install -e '.[ray]')")):
         run_experiment(experiment, executor="ray")
 
 
