@@ -33,7 +33,6 @@ scene leaves the runs trained on it valid); flow.json's own hashes say when it i
 
 from __future__ import annotations
 
-import hashlib
 import json
 import time
 import warnings
@@ -49,6 +48,7 @@ from liquidgs.data.loading import load_dataset
 from liquidgs.data.nerfies import RGB_FOLDER, camera_path, read_camera
 from liquidgs.data.scene import DataConfig, Frame, SceneDataset
 from liquidgs.errors import DataError, LiquidGSError
+from liquidgs.file_hash import file_sha256
 
 FLOW_FOLDER = "flow"
 FLOW_FILE = "flow.json"
@@ -199,10 +199,6 @@ class FlowSummary:
 
 def flow_folder(scene: Path, factor: int) -> Path:
     return Path(scene) / FLOW_FOLDER / f"{factor}x"
-
-
-def file_sha256(path: Path) -> str:
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
 def _sources(dataset: SceneDataset, frames: list[Frame]) -> dict[str, str]:

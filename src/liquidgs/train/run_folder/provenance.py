@@ -11,32 +11,15 @@ A derived file whose run folder is gone (a copy on another machine, a shared exp
 
 from __future__ import annotations
 
-import hashlib
 import json
 from pathlib import Path
 
 from liquidgs.errors import LiquidGSError
+from liquidgs.file_hash import file_sha256
 from liquidgs.train.run_folder.layout import SCENE_PRINT
 
 SOURCE_FORMAT = "liquidgs-source-1"
 SOURCE_KEYS = ("run", "config", "iteration", "checkpoint", "checkpoint_sha256", "scene_sha256")
-
-_digests: dict[tuple[str, int, int], str] = {}
-"""File hashes by (path, size, mtime): a report reads one checkpoint for several derived files."""
-
-
-def file_sha256(path: Path) -> str:
-    path = Path(path)
-    stat = path.stat()
-    key = (str(path.resolve()), stat.st_size, stat.st_mtime_ns)
-    if key not in _digests:
-        digest = hashlib.sha256()
-        with open(path, "rb") as file:
-            for block in iter(lambda: file.read(1 << 20), b""):
-                digest.update(block)
-        _digests[key] = digest.hexdigest()
-    return _digests[key]
-
 
 def scene_sha256(folder: Path) -> str | None:
     """The hash of the scene print a run (or baked) folder holds; None where it has none."""
