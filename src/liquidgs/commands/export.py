@@ -1,7 +1,8 @@
 """`liquidgs export --run DIR`: PLY files that standard 3DGS viewers open.
 
 Writes DIR/export/canonical.ply, field.pt (the field's weights and config, to evaluate it
-elsewhere), one PLY per --time with the deltas baked in, and with --sequence N a PLY
+elsewhere; "moving": the rows of canonical.ply a split run's field moves, None for all), one PLY
+per --time with the deltas baked in, and with --sequence N a PLY
 sequence sequence/frame_0000.ply ... at N evenly spaced times (SuperSplat/brush timelines), built
 beside sequence/ and renamed into place whole (an older sequence is replaced only by a complete one).
 DIR may be a baked scene (`liquidgs bake`; no field.pt then). Every file records the source
@@ -113,6 +114,8 @@ def export_run(args: ExportArgs, console: Console | None = None) -> list[Path]:
             "config": dataclasses.asdict(run.config.field_config()),
             "state_dict": field_weights,
             "source": source,
+            # A split run's field moves only these rows of canonical.ply (None: every row).
+            "moving": None if getattr(run, "moving", None) is None else run.moving.cpu(),
         }
         written.append(save_torch_atomic(out / "field.pt", payload))
     for name, t in names.items():

@@ -188,7 +188,7 @@ def train(cfg: TrainConfig, run_dir: Path, console: Console | None = None, datas
                 (run_dir / PER_VIEW).unlink(missing_ok=True)
                 console.print(f"extending the finished run to {cfg.iterations} iterations; removed its {RESULTS}")
             console.print(f"resuming {run_dir} at iteration {trainer.state.iteration}")
-        write_scene_print(run_dir, cfg.data.path)
+        write_scene_print(run_dir, cfg.data.path, trainer.flow_scales())
         try:
             with make_progress(console) as progress:
                 results = trainer.run(progress)

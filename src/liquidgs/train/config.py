@@ -35,6 +35,7 @@ from liquidgs.fields.registry import check_recorded_field, field_record
 from liquidgs.render import BACKENDS
 from liquidgs.settings import to_dict, with_settings
 from liquidgs.train.camera_opt import Alignment, CameraRefineConfig, known_format, refines
+from liquidgs.train.dynamic_split import SplitConfig, split_applies
 from liquidgs.train.exposure import ExposureConfig, compensates
 from liquidgs.train.flow_loss import FlowLossConfig
 from liquidgs.train.motion_reg import MotionRegConfig, motion_applies
@@ -162,6 +163,9 @@ class TrainConfig:
     """A colour correction per training frame (on for captures, off for D-NeRF)."""
     flow: FlowLossConfig = dataclasses.field(default_factory=FlowLossConfig)
     """The optical-flow loss (off by default; captures with flow at the training scale)."""
+    split: SplitConfig = dataclasses.field(default_factory=SplitConfig)
+    """Static and dynamic Gaussians: the field moves only those the motion masks show moving (off by
+    default; captures with flow at the training scale)."""
 
     def __post_init__(self) -> None:
         own = field_options_class(self.field)
@@ -381,6 +385,9 @@ def check_given_settings(cfg: TrainConfig, given: typing.Iterable[str]) -> None:
             else:
                 why = f"--motion.apply auto is off for {data_format} data (on for captures)"
             raise ConfigError(f"--motion.{name.replace('_', '-')} has no effect: {why}, so no motion term is trained")
+        if group == "split" and name != "apply" and not split_applies(cfg.split, cfg.field):
+            why = "the static field does not move Gaussians" if cfg.field == "static" else "--split.apply is off"
+            raise ConfigError(f"--split.{name.replace('_', '-')} has no effect: {why}")
 
 
 # Settings that change where or how a run executes, not what it computes.
@@ -437,6 +444,8 @@ def identity_v2(cfg: TrainConfig) -> dict:
         del d["exposure"]
     if not cfg.flow.weight:  # the optical-flow loss, added after version 2: off in every run made before it
         del d["flow"]
+    if not split_applies(cfg.split, cfg.field):  # static and dynamic Gaussians, likewise
+        del d["split"]
     if not cfg.perturb.exposure:  # the exposure-flicker stress test, added after version 2
         del d["perturb"]["exposure"]
     d["data"]["path"] = str(Path(d["data"]["path"]).resolve())

@@ -27,23 +27,35 @@ def deform(
     field: torch.nn.Module | None,
     time: float | torch.Tensor,
     time_noise: float = 0.0,
+    moving: torch.Tensor | None = None,
 ) -> Deformed:
     """Apply the field's deltas the way D-3DGS does.
 
     means = xyz + d_xyz; scales = exp(log_scale) + d_scaling (after the activation);
     rotation = normalize(q) + d_rotation (renormalised by the rasteriser). With field None
-    (the static model, or the warm-up) the deltas are zero.
+    (the static model, or the warm-up) the deltas are zero. `moving` (int64 indices, the dynamic
+    Gaussians of a split run) limits the field to those Gaussians: the others keep zero deltas and
+    cost nothing.
     """
     act = activate(params)
-    if field is None:
+    if field is None or (moving is not None and moving.numel() == 0):
         return Deformed(act["means"], act["quats"], act["scales"], act["opacities"], act["colors"])
     # One time for every Gaussian stays a [1, 1] column: the field encodes it once.
     t = torch.as_tensor(time, dtype=params["means"].dtype, device=params["means"].device).reshape(-1, 1) + time_noise
-    d_xyz, d_rotation, d_scaling = field(params["means"], t)
+    if moving is None:
+        d_xyz, d_rotation, d_scaling = field(params["means"], t)
+        return Deformed(
+            means=act["means"] + d_xyz,
+            quats=act["quats"] + d_rotation,
+            scales=act["scales"] + d_scaling,
+            opacities=act["opacities"],
+            colors=act["colors"],
+        )
+    d_xyz, d_rotation, d_scaling = field(params["means"][moving], t)
     return Deformed(
-        means=act["means"] + d_xyz,
-        quats=act["quats"] + d_rotation,
-        scales=act["scales"] + d_scaling,
+        means=act["means"].index_add(0, moving, d_xyz),
+        quats=act["quats"].index_add(0, moving, d_rotation),
+        scales=act["scales"].index_add(0, moving, d_scaling),
         opacities=act["opacities"],
         colors=act["colors"],
     )

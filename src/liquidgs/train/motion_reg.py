@@ -138,6 +138,15 @@ def nearest_neighbours(points: torch.Tensor, k: int) -> torch.Tensor:
     return torch.from_numpy(idx[keep].reshape(len(xyz), kk)).long()
 
 
+def surface_move(x0: torch.Tensor, q0: torch.Tensor, xt: torch.Tensor, qt: torch.Tensor, sizes: torch.Tensor):
+    """How far each Gaussian's surface moves from (x0, q0) to (xt, qt): its centre, plus its largest
+    axis (`sizes` [N, 3]) times the angle turned (the chord between the unit quaternions, either sign)."""
+    q0 = torch.nn.functional.normalize(q0, dim=-1)
+    qt = torch.nn.functional.normalize(qt, dim=-1)
+    turn = 2 * (qt - torch.sign((qt * q0).sum(-1, keepdim=True)) * q0).norm(dim=-1)
+    return (xt - x0).norm(dim=-1) + sizes.max(dim=-1).values * turn
+
+
 class MotionRegulariser:
     def __init__(self, cfg: MotionRegConfig, weights: tuple[float, float, float], scene_extent: float = 1.0):
         self.cfg = cfg
@@ -161,12 +170,7 @@ class MotionRegulariser:
         terms = canonical_means.new_zeros(())
         if self.stillness > 0:
             a = i[:, 0]
-            q0 = torch.nn.functional.normalize(canonical_quats.detach()[a], dim=-1)
-            qt = torch.nn.functional.normalize(quats[a], dim=-1)
-            # The chord between the unit quaternions (either sign): about the angle turned, in radians.
-            turn = 2 * (qt - torch.sign((qt * q0).sum(-1, keepdim=True)) * q0).norm(dim=-1)
-            # How far the Gaussian's surface moves: its centre, and its largest axis turned.
-            moved = (means[a] - x0[a]).norm(dim=-1) + sizes[a].detach().max(dim=-1).values * turn
+            moved = surface_move(x0[a], canonical_quats.detach()[a], means[a], quats[a], sizes[a].detach())
             terms = terms + self.stillness * moved.mean() / self.scene_extent
         if not neighbours or self.table.shape[1] == 0:
             return terms
@@ -182,6 +186,10 @@ class MotionRegulariser:
         if self.isometry > 0:
             terms = terms + self.isometry * (offset_t.norm(dim=-1) - offset0.norm(dim=-1)).abs().mean()
         return terms
+
+    def forget_neighbours(self) -> None:
+        """The Gaussians regularised changed (a split run's labels): the next step searches anew."""
+        self.table = None
 
     def state_dict(self) -> dict:
         return {"table": self.table, "table_step": self.table_step}

@@ -16,6 +16,7 @@ from liquidgs.fields import build_field
 from liquidgs.gaussians import PARAM_KEYS
 from liquidgs.train.config import TrainConfig, config_hash, load_yaml
 from liquidgs.train.dataset import load_run_dataset
+from liquidgs.train.dynamic_split import DYNAMIC, moving_indices, split_applies
 from liquidgs.train.model import Deformed, deform, hold_sizes, render_frame
 from liquidgs.train.run_folder import (
     CHECKPOINT,
@@ -38,6 +39,8 @@ class TrainedRun:
     iteration: int
     finished: bool
     """results.json, the run's only done marker, exists and the checkpoint is at the last iteration."""
+    moving: torch.Tensor | None = None
+    """Indices of the Gaussians the field moves (train.dynamic_split); None: all of them."""
 
     @property
     def progress_label(self) -> str:
@@ -64,7 +67,8 @@ class TrainedRun:
     @torch.no_grad()
     def at_time(self, time: float) -> Deformed:
         """The Gaussians at `time`; a diverged run (NaN or infinity in them) is one line, not a score."""
-        gaussians = deform(self.params, self.field if self.config.field != "static" else None, time)
+        field = self.field if self.config.field != "static" else None
+        gaussians = deform(self.params, field, time, moving=self.moving)
         check_finite(self.run_dir, f"the Gaussians at time {time:g}", vars(gaussians))
         return gaussians
 
@@ -128,7 +132,13 @@ def load_run(run_dir: str | Path, device: str = "auto") -> TrainedRun:
     field.set_progress(int(state["iteration"]))  # annealed noise schedules resume where training ended
     iteration = int(state["iteration"])
     finished = (run_dir / RESULTS).is_file() and iteration == cfg.iterations
-    return TrainedRun(run_dir, cfg, params, field, int(state["sh_degree"]), iteration, finished)
+    moving = None
+    if split_applies(cfg.split, cfg.field):
+        labels = payload["strategy"].get(DYNAMIC)
+        if labels is None or labels.shape != params["means"].shape[:1]:
+            raise LiquidGSError(f"{run_dir / CHECKPOINT}: no static/dynamic label for each Gaussian (split.apply)")
+        moving = moving_indices(labels.bool()).to(dev)
+    return TrainedRun(run_dir, cfg, params, field, int(state["sh_degree"]), iteration, finished, moving)
 
 
 DEFAULT_THREADS = 1

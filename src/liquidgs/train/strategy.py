@@ -20,6 +20,9 @@ from gsplat.strategy import ops as gsplat_ops
 
 from liquidgs.render.projection import quat_to_rotmat
 
+STATISTICS = ("grad_accum", "count", "max_radii")
+"""The strategy state's rows it measures; a new Gaussian starts them at zero."""
+
 
 @dataclass
 class DensifyConfig:
@@ -63,11 +66,9 @@ class D3DGSStrategy:
         self.scene_extent = scene_extent
 
     def initial_state(self, n: int, device: torch.device) -> dict[str, torch.Tensor]:
-        return {
-            "grad_accum": torch.zeros(n, device=device),
-            "count": torch.zeros(n, device=device),
-            "max_radii": torch.zeros(n, device=device),
-        }
+        """The statistics; other rows added to the state (a Gaussian's label) are carried as they are:
+        a clone or split child takes its parent's."""
+        return {key: torch.zeros(n, device=device) for key in STATISTICS}
 
     def step_post_backward(
         self,
@@ -149,7 +150,7 @@ class D3DGSStrategy:
         if n_pruned:
             gsplat_ops.remove(params, optimizers, state, prune)
 
-        for key in ("grad_accum", "count", "max_radii"):
+        for key in STATISTICS:
             state[key].zero_()
         return {"cloned": n_clone, "split": n_split, "pruned": n_pruned, "pruned_all": int(pruned_all)}
 
@@ -175,7 +176,7 @@ class D3DGSStrategy:
 @torch.no_grad()
 def _duplicate_unmeasured(params, optimizers, state, mask: torch.Tensor, copies: int = 1) -> None:
     """Append `copies` copies of the Gaussians in `mask` by gsplat's duplicate (zero Adam moments),
-    then zero the copies' densification statistics.
+    then zero the copies' densification statistics (any other state row, a label, is the source's).
 
     gsplat's duplicate gives each copy its source's statistics; in D-3DGS a new Gaussian starts
     unmeasured, so the screen-radius prune later in the same step does not judge a clone by the
@@ -185,8 +186,8 @@ def _duplicate_unmeasured(params, optimizers, state, mask: torch.Tensor, copies:
     for _ in range(copies):
         grown = params["means"].shape[0] - n
         gsplat_ops.duplicate(params, optimizers, state, torch.cat([mask, mask.new_zeros(grown)]))
-    for value in state.values():
-        value[n:] = 0
+    for key in STATISTICS:
+        state[key][n:] = 0
 
 
 @torch.no_grad()

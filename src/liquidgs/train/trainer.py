@@ -18,7 +18,7 @@ import numpy as np
 import torch
 
 from liquidgs.data import SceneDataset, load_dataset, spread_extent
-from liquidgs.data.flow import image_scale, read_flow_pairs
+from liquidgs.data.flow import flow_folder, image_scale, read_flow_pairs
 from liquidgs.data.scene import MIN_CAMERA_EXTENT
 from liquidgs.errors import ConfigError, LiquidGSError
 from liquidgs.eval import LPIPS, LPIPSUnavailable, evaluate_views, ssim
@@ -29,10 +29,11 @@ from liquidgs.gaussians import PARAM_KEYS, init_from_points, init_random_box
 from liquidgs.train.camera_opt import CameraRefinement, aligned_render, refines
 from liquidgs.train.config import TrainConfig, save_yaml
 from liquidgs.train.dataset import load_run_dataset
+from liquidgs.train.dynamic_split import DYNAMIC, MotionVotes, moving_indices, split_applies
 from liquidgs.train.exposure import ExposureCompensation, compensates
 from liquidgs.train.flow_loss import FlowLoss
 from liquidgs.train.model import deform, hold_sizes, render_frame
-from liquidgs.train.motion_reg import MotionRegulariser, holds_sizes, regularisation
+from liquidgs.train.motion_reg import MotionRegulariser, holds_sizes, regularisation, surface_move
 from liquidgs.train.phases import NoClock, PhaseClock
 from liquidgs.train.run import resolve_device
 from liquidgs.train.run_folder import (
@@ -156,7 +157,13 @@ class Trainer:
                              self.device, cfg.optim.adam_eps, self._true_cameras(clean), self.dataset.points)
             if refines(cfg.cameras, self.dataset.format) else None
         )  # fmt: skip
+        self.split = self._motion_votes()
+        """The motion masks that label each Gaussian static or dynamic, or None (the run does not split)."""
+        if self.split is not None:
+            self.strategy_state[DYNAMIC] = self.split.initial(self.params["means"].detach())
         weights = regularisation(cfg.motion, self.dataset.format, cfg.field)
+        if weights is not None and self.split is not None:  # static Gaussians are held still exactly
+            weights = weights[:2] + (0.0,) if any(weights[:2]) else None
         # Rigidity / isometry over neighbours and stillness on the deformation, or None (every weight 0).
         self.motion = (
             MotionRegulariser(cfg.motion, weights, self.strategy.scene_extent) if weights is not None else None
@@ -184,6 +191,28 @@ class Trainer:
             return None
         by_name = {frame.name: frame.camera for frame in clean.train}
         return [by_name[frame.name] for frame in self.dataset.train]
+
+    def _motion_votes(self) -> MotionVotes | None:
+        """The train frames' motion masks when the run splits its Gaussians (split.apply), else None."""
+        if not split_applies(self.cfg.split, self.cfg.field):
+            return None
+        if self.dataset.format != "nerfies":
+            raise ConfigError(
+                f"split.apply: static and dynamic Gaussians are decided from a capture's motion masks; "
+                f"{self.cfg.data.path} is D-NeRF"
+            )
+        return MotionVotes(self.cfg.split, self.cfg.data.path, self.dataset.train, self.strategy.scene_extent,
+                           self.device)  # fmt: skip
+
+    def flow_scales(self) -> tuple[str, ...]:
+        """The flow/<k>x folders of the scene this run trains from (its scene print holds them)."""
+        if self.flow_loss is None and self.split is None:
+            return ()
+        return (flow_folder(self.cfg.data.path, image_scale(self.cfg.data.path, self.dataset.train)).name,)
+
+    def moving(self) -> torch.Tensor | None:
+        """Indices of the Gaussians the field moves (None: all of them)."""
+        return None if self.split is None else moving_indices(self.strategy_state[DYNAMIC])
 
     def _flow_loss(self) -> FlowLoss | None:
         """The optical-flow loss over the scene's flow at the training scale, or None (weight 0)."""
@@ -306,7 +335,8 @@ class Trainer:
         self.field.set_progress(step)
         clock.mark("data")
         n_before = self.params["means"].shape[0]
-        gaussians = deform(self.params, self.field if use_field else None, frame.time, self.time_noise(step))
+        moving = self.moving()
+        gaussians = deform(self.params, self.field if use_field else None, frame.time, self.time_noise(step), moving)
         if not all(torch.isfinite(t).all() for t in (gaussians.means, gaussians.quats, gaussians.scales)):
             raise self._diverged(f"non-finite Gaussians at iteration {step}")
         deformed = gaussians
@@ -322,12 +352,9 @@ class Trainer:
         if regulariser is not None:
             loss = loss + regulariser
         if self.motion is not None and use_field:
-            p = self.params
-            loss = loss + self.motion.loss(
-                step, p["means"], p["quats"], deformed.means, deformed.quats, deformed.scales
-            )
+            loss = loss + self._motion_term(step, deformed, moving)
         if self.flow_loss is not None:
-            loss = loss + self._flow_term(gaussians, index, frame, use_field, step)
+            loss = loss + self._flow_term(gaussians, index, frame, use_field, step, moving)
         if not torch.isfinite(loss):
             raise self._diverged(f"non-finite loss at iteration {step}")
         clock.mark("loss_forward")
@@ -352,6 +379,8 @@ class Trainer:
             self.cameras.step(step)
         if self.exposure is not None:
             self.exposure.step(step)
+        if self.split is not None and use_field and self.split.redecides(step, cfg.warmup, cfg.densify.stop):
+            self._redecide_labels()
         clock.mark("optimizer_step")
         with torch.no_grad():
             mse = ((rgb.detach().clamp(0, 1) - gt) ** 2).mean()
@@ -369,13 +398,50 @@ class Trainer:
             **report,
         }
 
-    def _flow_term(self, gaussians, index: int, frame, use_field: bool, step: int):
+    def _motion_term(self, step: int, deformed, moving: torch.Tensor | None):
+        """The motion regularisers, over the dynamic Gaussians alone in a split run."""
+        p = self.params
+        if moving is None:
+            return self.motion.loss(step, p["means"], p["quats"], deformed.means, deformed.quats, deformed.scales)
+        if moving.numel() < 2:  # no neighbours to hold together
+            return 0.0
+        return self.motion.loss(step, p["means"][moving], p["quats"][moving], deformed.means[moving],
+                                deformed.quats[moving], deformed.scales[moving])  # fmt: skip
+
+    @torch.no_grad()
+    def _redecide_labels(self) -> None:
+        """The split's labels decided again (train.dynamic_split); the neighbour terms then look anew."""
+        labels = self.strategy_state[DYNAMIC]
+        new = self.split.redecide(self.params["means"].detach(), labels, self._largest_move)
+        if not torch.equal(new, labels):
+            self.strategy_state[DYNAMIC] = new
+            if self.motion is not None:
+                self.motion.forget_neighbours()
+
+    def _largest_move(self, indices: torch.Tensor) -> torch.Tensor:
+        """How far the field moves each Gaussian of `indices` (its surface, scene units), the most over
+        the split's sample of train times; measured without the field's training noise."""
+        p = self.params
+        sizes = torch.exp(p["scales"][indices])
+        largest = sizes.new_zeros(indices.shape[0])
+        self.field.eval()
+        try:
+            for time in self.split.sample_times():
+                g = deform(p, self.field, time, moving=indices)
+                moved = surface_move(p["means"][indices], p["quats"][indices], g.means[indices], g.quats[indices],
+                                     sizes)  # fmt: skip
+                largest = torch.maximum(largest, moved)
+        finally:
+            self.field.train()
+        return largest
+
+    def _flow_term(self, gaussians, index: int, frame, use_field: bool, step: int, moving: torch.Tensor | None):
         """The optical-flow loss of this step's frame against one of its neighbours (0 where it has none)."""
         target = self.flow_loss.target(index, self.camera_rng)
         if target is None:
             return 0.0
         other = self.dataset.train[target.neighbour]
-        later = deform(self.params, self.field if use_field else None, other.time)
+        later = deform(self.params, self.field if use_field else None, other.time, moving=moving)
         if self.cameras is not None:
             later = self.cameras.correct(later, target.neighbour, other.camera, step)
         term = self.flow_loss.loss(gaussians, frame.camera, later, other.camera, target)
@@ -510,7 +576,8 @@ class Trainer:
         )  # fmt: skip
 
     def render_fn(self, frame):
-        gaussians = deform(self.params, self.field if self.cfg.field != "static" else None, frame.time)
+        field = self.field if self.cfg.field != "static" else None
+        gaussians = deform(self.params, field, frame.time, moving=self.moving())
         if not all(torch.isfinite(t).all() for t in (gaussians.means, gaussians.quats, gaussians.scales)):
             mode = "training" if self.field.training else "evaluation"
             raise self._diverged(
@@ -538,7 +605,8 @@ class Trainer:
         """The test split scored with each test view aligned to the frozen scene (its pose, its exposure,
         as self.alignment says): the second, labelled score of a run that refines either."""
         render = aligned_render(
-            lambda time: deform(self.params, self.field if self.cfg.field != "static" else None, time),
+            lambda time: deform(self.params, self.field if self.cfg.field != "static" else None, time,
+                                moving=self.moving()),
             lambda gaussians, camera: render_frame(gaussians, camera, sh_degree=self.state.sh_degree,
                                                    background=self.background, backend=self.cfg.backend).rgb,
             self.cfg.cameras, self.dataset.camera_extent, self.cfg.ssim_weight, self.alignment,
@@ -625,6 +693,7 @@ class Trainer:
             views={"train": len(self.dataset.train), "test": len(self.dataset.test)},
             final_aligned=self.evaluate_aligned() if self.alignment is not None else {},
             threads=torch.get_num_threads(),
+            dynamic_gaussians=None if self.split is None else int(self.strategy_state[DYNAMIC].sum()),
         )
         write_per_view(self.run_dir / PER_VIEW, cfg.iterations, per_view)
         (self.run_dir / FAILURE).unlink(missing_ok=True)  # of an earlier attempt this resume got past

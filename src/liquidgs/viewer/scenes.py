@@ -19,6 +19,9 @@ from liquidgs.render import rasterize
 from liquidgs.train.run import TrainedRun, load_run
 from liquidgs.train.run_folder import check_source, same_source, source_in_comments
 
+SPLIT_COLOURS = torch.tensor([[0.2, 0.45, 1.0], [1.0, 0.5, 0.05]])
+"""The static / dynamic view's flat colours: static Gaussians blue, dynamic ones orange."""
+
 
 class RunScene:
     """A finished liquidgs run: renders through its deformation field at any time in [0, 1]."""
@@ -33,9 +36,28 @@ class RunScene:
     def has_noise(self) -> bool:
         return self.run.config.field == "sde" and self.run.field is not None  # baked: the mean only
 
+    @property
+    def has_split(self) -> bool:
+        """Whether the run labels its Gaussians static or dynamic (train.dynamic_split; a baked scene
+        keeps no labels)."""
+        return getattr(self.run, "moving", None) is not None
+
     @torch.no_grad()
     def render(self, camera: Camera, time: float) -> torch.Tensor:
         return self.run.render(camera, time, self.background).rgb
+
+    @torch.no_grad()
+    def render_split(self, camera: Camera, time: float) -> torch.Tensor:
+        """The scene at `time` with each Gaussian in its label's flat colour (SPLIT_COLOURS)."""
+        g = self.run.at_time(time)
+        dynamic = torch.zeros(g.means.shape[0], dtype=torch.long, device=g.means.device)
+        dynamic[self.run.moving] = 1
+        colours = SPLIT_COLOURS.to(g.means)[dynamic]
+        return rasterize(
+            g.means, g.quats, g.scales, g.opacities, colours, camera.viewmat.to(g.means), camera.K.to(g.means),
+            camera.width, camera.height, sh_degree=None, background=self.background.to(g.means),
+            backend=self.run.config.backend,
+        ).rgb  # fmt: skip
 
     @torch.no_grad()
     def uncertainty(self, camera: Camera, time: float, samples: int) -> torch.Tensor:
@@ -48,6 +70,7 @@ class PlyScene:
     """An exported PLY, or a PLY sequence (a folder of *.ply) spread evenly over time [0, 1]."""
 
     has_noise = False
+    has_split = False
 
     def __init__(self, path: Path, background: torch.Tensor):
         self.label = path.name

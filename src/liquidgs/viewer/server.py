@@ -167,6 +167,8 @@ class Viewer:
             self.uncertainty = gui.add_checkbox("uncertainty (sde)", initial_value=False, disabled=not noisy)
             self.samples = gui.add_slider("MC samples", min=2, max=32, step=1, initial_value=8, disabled=not noisy)
             self.uncertainty_text = gui.add_markdown("")
+            split = any(s.has_split for s in self.scenes)
+            self.split_view = gui.add_checkbox("static / dynamic", initial_value=False, disabled=not split)
         if self.cameras:
             with gui.add_folder("Cameras"):
                 names = list(self.cameras)
@@ -186,7 +188,7 @@ class Viewer:
             save.on_click(lambda event: self.save_camera_path(event.client))
             self.path_text = gui.add_markdown("0 keyframes")
         controls = [self.time_slider, self.scene_choice, self.side_by_side, self.resolution]
-        controls += [self.uncertainty, self.samples] + ([self.ground_truth] if self.cameras else [])
+        controls += [self.uncertainty, self.samples, self.split_view] + ([self.ground_truth] if self.cameras else [])
         for control in controls:
             control.on_update(lambda _: self._changed())
 
@@ -308,6 +310,8 @@ class Viewer:
             image, peak = heat_map(scene.uncertainty(camera, t, int(self.samples.value)))
             self.uncertainty_text.content = f"heat map: black = 0, yellow = std {peak:.4f} (mean over RGB)"
             return image, {**info, "mode": "uncertainty", "peak_std": peak}
+        if self.split_view.value and scene.has_split:  # static blue, dynamic orange
+            return to_uint8(scene.render_split(camera, t)), {**info, "mode": "static / dynamic"}
         image = to_uint8(scene.render(camera, t))
         # A baked scene away from its scene folder has its cameras, not their images.
         if snapped is not None and self.cameras and self.ground_truth.value and snapped.image_path.is_file():

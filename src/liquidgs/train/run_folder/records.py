@@ -69,10 +69,13 @@ class RunResults:
     threads: int | None = None
     """torch's intra-op threads, which the compiled CPU kernels use too (train.run.training_threads);
     None in results written before it was recorded. Some results depend on it (docs/training.md says which)."""
+    dynamic_gaussians: int | None = None
+    """Of num_gaussians, those the field moves in a run that splits them (train.dynamic_split); None
+    (left out) in a run that does not."""
 
     def to_json(self) -> dict:
-        """The file's content; what was recorded later and is absent here (threads None, final_aligned
-        empty) is left out, as it was before."""
+        """The file's content; what was recorded later and is absent here (threads or dynamic_gaussians
+        None, final_aligned empty) is left out, as it was before."""
         return {
             _json_key(name): value
             for name, value in dataclasses.asdict(self).items()
@@ -105,7 +108,7 @@ class RunResults:
         return cls(**{name: raw[key] for key, name in names.items() if key in raw})
 
 
-_RECORDED_LATER = {"threads": int}
+_RECORDED_LATER = {"threads": int, "dynamic_gaussians": int}
 """Fields added to the format after results were written without them, with their kind: absent or
 null means unknown (None)."""
 

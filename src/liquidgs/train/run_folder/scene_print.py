@@ -5,7 +5,9 @@ The print is cheap: every file's path and size, and the bytes of the small files
 cameras, times and splits (D-NeRF's transforms_*.json, Nerfies' dataset.json and camera/*.json),
 not the images' bytes. Hidden files and folders are left out (the OS's and editors' own), and so is
 flow/ (optical flow and motion masks, derived from the frames and cameras and checked against them
-by its own flow.json: adding it to a scene leaves the runs trained on that scene valid).
+by its own flow.json: adding it to a scene leaves the runs trained on that scene valid) - except the
+flow/<k>x a run trains from (the flow loss, the static/dynamic split): computed again otherwise, it
+is no longer the run's scene.
 A run folder made before the print existed has none: it is read as before, unchecked.
 """
 
@@ -24,8 +26,9 @@ PRINT_FORMAT = "liquidgs-scene-print-1"
 HASHED_SUFFIXES = (".json", ".txt", ".yml", ".yaml")
 
 
-def scene_print(scene: Path) -> dict:
-    """{format, files: {relative path: size}, hashes: {relative path: sha256}} of a scene folder."""
+def scene_print(scene: Path, flow_scales: tuple[str, ...] = ()) -> dict:
+    """{format, files: {relative path: size}, hashes: {relative path: sha256}} of a scene folder, with
+    the flow/<k>x folders named in `flow_scales` ("2x", ...)."""
     scene = Path(scene)
     files, hashes = {}, {}
     if scene.is_dir():
@@ -33,7 +36,7 @@ def scene_print(scene: Path) -> dict:
             relative = path.relative_to(scene)
             if any(part.startswith(".") for part in relative.parts) or not path.is_file():
                 continue
-            if relative.parts[0] == FLOW_FOLDER:
+            if relative.parts[0] == FLOW_FOLDER and (len(relative.parts) < 3 or relative.parts[1] not in flow_scales):
                 continue
             files[relative.as_posix()] = path.stat().st_size
             if path.suffix.lower() in HASHED_SUFFIXES:
@@ -41,8 +44,15 @@ def scene_print(scene: Path) -> dict:
     return {"format": PRINT_FORMAT, "files": files, "hashes": hashes}
 
 
-def write_scene_print(run_dir: Path, scene: Path) -> Path:
-    return write_json_atomic(Path(run_dir) / SCENE_PRINT, scene_print(scene))
+def write_scene_print(run_dir: Path, scene: Path, flow_scales: tuple[str, ...] = ()) -> Path:
+    """The print of `scene`, with the flow/<k>x folders (`flow_scales`) the run trains from."""
+    return write_json_atomic(Path(run_dir) / SCENE_PRINT, scene_print(scene, flow_scales))
+
+
+def _flow_scales(recorded: dict) -> tuple[str, ...]:
+    """The flow/<k>x folders a recorded print holds."""
+    names = (Path(name).parts for name in recorded.get("files", {}))
+    return tuple(sorted({parts[1] for parts in names if len(parts) > 2 and parts[0] == FLOW_FOLDER}))
 
 
 def _difference(recorded: dict, now: dict) -> str:
@@ -69,7 +79,7 @@ def check_scene_print(run_dir: Path, scene: Path) -> None:
             raise ValueError(f"format is not {PRINT_FORMAT}")
     except (OSError, UnicodeDecodeError, ValueError) as err:
         raise ConfigError(f"{path}: unreadable scene print ({err})") from None
-    now = scene_print(scene)
+    now = scene_print(scene, _flow_scales(recorded))
     if {k: recorded.get(k) for k in ("files", "hashes")} != {k: now[k] for k in ("files", "hashes")}:
         raise ConfigError(
             f"{scene}: not the scene the run in {run_dir} was trained on ({_difference(recorded, now)}); "

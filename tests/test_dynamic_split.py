@@ -1,0 +1,181 @@
+"""Static and dynamic Gaussians (train.dynamic_split): labelled from the motion masks, static ones never
+moved, labels carried by densification and resumed bit-exactly."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from PIL import Image
+
+from liquidgs.commands.train import resolve_config
+from liquidgs.data import generate_synthetic, load_dataset
+from liquidgs.data.flow import compute_scene_flow
+from liquidgs.errors import LiquidGSError
+from liquidgs.train.config import config_hash, identity
+from liquidgs.train.dataset import load_run_dataset
+from liquidgs.train.dynamic_split import DYNAMIC, MotionVotes, SplitConfig
+from liquidgs.train.flow_loss import project
+from liquidgs.train.run import load_run
+from liquidgs.train.strategy import D3DGSStrategy, DensifyConfig, _duplicate_unmeasured, _split
+from shared_data import use_optional_lpips
+from tiny_runs import interrupt_at, run_cli, run_train, tiny_flags
+
+pytest.importorskip("cv2", reason="optical flow needs opencv-python-headless (the dev extra installs it)")
+
+
+@pytest.fixture(scope="module")
+def capture(tmp_path_factory) -> Path:
+    """The puppet as a capture (48 px, 16 frames) with its flow and motion masks."""
+    scene = generate_synthetic("puppet", tmp_path_factory.mktemp("split") / "puppet", size=48, frames=16, seed=2)
+    compute_scene_flow(scene / "nerfies", None)
+    return scene / "nerfies"
+
+
+@pytest.fixture(autouse=True)
+def optional_lpips(monkeypatch):
+    use_optional_lpips(monkeypatch)
+
+
+def votes_for(capture: Path, cfg: SplitConfig | None = None) -> tuple[MotionVotes, list]:
+    cfg_run, _ = resolve_config(["--data", str(capture), "--preset", "tiny"])
+    train = load_run_dataset(cfg_run, load_dataset(cfg_run.data)).train
+    return MotionVotes(cfg or SplitConfig(apply=True), capture, train, 1.0, torch.device("cpu")), train
+
+
+def test_a_point_the_masks_hold_in_every_frame_is_dynamic_and_one_they_never_hold_is_static(capture):
+    votes, train = votes_for(capture)
+    held, elsewhere = torch.tensor([[0.05, 0.02, 0.0]]), torch.tensor([[0.3, -0.25, 0.1]])
+    votes.masks[:] = False
+    for i, frame in enumerate(train):  # each frame's mask is the one pixel the first point falls in
+        col, row = project(held.double(), frame.camera).floor().long()[0].tolist()
+        votes.masks[i, row, col] = True
+    assert votes.vote(torch.cat([held, elsewhere])).tolist() == [1.0, 0.0]
+    assert votes.initial(torch.cat([held, elsewhere])).tolist() == [True, False]
+    behind = torch.tensor([[0.0, 0.0, 1e4]])  # no camera sees it: static
+    assert votes.vote(behind).tolist() == [0.0]
+
+
+def test_labels_are_decided_again_from_the_masks_and_the_field_motion(capture):
+    votes, _ = votes_for(capture)
+    votes.vote = lambda means: torch.tensor([1.0, 0.0, 0.0, 1.0])  # masks hold Gaussians 0 and 3
+    labels = torch.tensor([False, True, True, True])
+    moves = {1: 0.0, 2: 0.5, 3: 0.0}  # the field leaves 1 (and 3) still and moves 2
+
+    def largest_move(indices):
+        return torch.tensor([moves[int(i)] for i in indices])
+
+    new = votes.redecide(torch.zeros(4, 3), labels, largest_move)
+    # 0: inside, becomes dynamic; 1: outside and still, becomes static; 2 moves; 3 is inside (kept)
+    assert new.tolist() == [True, False, True, True]
+
+
+def test_densification_gives_clones_and_split_children_their_parents_label():
+    n = 4
+    params = torch.nn.ParameterDict({
+        "means": torch.nn.Parameter(torch.randn(n, 3)), "scales": torch.nn.Parameter(torch.full((n, 3), -2.0)),
+        "quats": torch.nn.Parameter(torch.tensor([[1.0, 0, 0, 0]] * n)),
+        "opacities": torch.nn.Parameter(torch.zeros(n)),
+    })  # fmt: skip
+    optimizers = {k: torch.optim.Adam([p]) for k, p in params.items()}
+    state = D3DGSStrategy(DensifyConfig(), 1.0).initial_state(n, torch.device("cpu"))
+    state["count"] += 3
+    state[DYNAMIC] = torch.tensor([True, False, True, False])
+    _duplicate_unmeasured(params, optimizers, state, torch.tensor([True, True, False, False]))
+    assert state[DYNAMIC].tolist() == [True, False, True, False, True, False]
+    assert state["count"][n:].tolist() == [0, 0]  # statistics start anew, the label does not
+    _split(params, optimizers, state, torch.tensor([False, False, True, True, False, False]), 2, None)
+    # the parents 2 (dynamic) and 3 (static) replaced by two children each, all first children first
+    assert state[DYNAMIC].tolist() == [True, False, True, False, True, False, True, False]
+
+
+SPLIT_RUN = tiny_flags({"iterations": 30, "checkpoint_every": 10, "eval.start": 30, "cameras.align_steps": 5,
+                        "split.apply": True, "split.every": 5})  # fmt: skip
+
+
+def test_the_field_never_moves_a_static_gaussian_and_sees_only_the_dynamic_ones(capture, tmp_path):
+    out = tmp_path / "run"
+    results = run_train(["--data", str(capture), "--field", "mlp", *SPLIT_RUN, "--out", str(out)])
+    run = load_run(out)
+    labels = torch.load(out / "checkpoint.pt", weights_only=True)["strategy"][DYNAMIC]
+    assert results.dynamic_gaussians == int(labels.sum()) and 0 < results.dynamic_gaussians < results.num_gaussians
+    seen = []
+    run.field.register_forward_hook(lambda _m, inputs, _out: seen.append(inputs[0].shape[0]))
+    canonical = run.at_time(0.0)  # time 0 moves nothing either way: compare against the parameters
+    static = ~labels
+    moved = 0.0
+    for time in (0.1, 0.5, 0.9):
+        at = run.at_time(time)
+        assert torch.equal(at.means[static], run.params["means"][static])
+        assert torch.equal(at.quats[static], canonical.quats[static])
+        moved = max(moved, float((at.means[labels] - run.params["means"][labels]).abs().max()))
+    assert moved > 0  # the dynamic ones do move
+    assert set(seen) == {results.dynamic_gaussians}
+
+
+def test_a_split_run_resumes_bit_exactly_labels_included(capture, tmp_path, monkeypatch):
+    flags = ["--data", str(capture), "--field", "mlp", *SPLIT_RUN]
+    run_train([*flags, "--out", str(tmp_path / "whole")])
+    interrupt_at(17, [*flags, "--out", str(tmp_path / "cut")], monkeypatch)
+    run_train([*flags, "--out", str(tmp_path / "cut"), "--resume"])
+    a = torch.load(tmp_path / "whole" / "checkpoint.pt", weights_only=True)
+    b = torch.load(tmp_path / "cut" / "checkpoint.pt", weights_only=True)
+    assert torch.equal(a["strategy"][DYNAMIC], b["strategy"][DYNAMIC])
+    for key, value in a["params"].items():
+        assert torch.equal(value, b["params"][key]), key
+
+
+def test_the_split_is_off_unless_asked_and_leaves_the_identity_of_runs_without_it(capture, puppet_scene, tmp_path):
+    base = ["--data", str(capture), "--preset", "tiny"]
+    plain, _ = resolve_config(base)
+    split, _ = resolve_config([*base, "--split.apply"])
+    static, _ = resolve_config([*base, "--field", "static", "--split.apply"])
+    static_plain, _ = resolve_config([*base, "--field", "static"])
+    assert "split" not in identity(plain) and config_hash(split) != config_hash(plain)
+    assert config_hash(static) == config_hash(static_plain)  # the static model has nothing to split
+    code, _, stderr = run_cli(["train", *base, "--split.vote", "0.3", "--out", str(tmp_path / "a")])
+    assert code == 2 and "--split.vote has no effect: --split.apply is off" in stderr
+    code, _, stderr = run_cli(["train", "--data", str(puppet_scene), "--preset", "tiny", "--split.apply",
+                               "--out", str(tmp_path / "b")])  # fmt: skip
+    assert code == 2 and "decided from a capture's motion masks" in stderr and stderr.count("\n") == 1
+    assert not (tmp_path / "b").exists()
+
+
+@pytest.mark.parametrize(("value", "message"), [(0, "hold no pixel"), (255, "hold every pixel")])
+def test_masks_that_hold_no_pixel_or_every_pixel_are_one_line(capture, tmp_path, value, message):
+    scene = Path(shutil.copytree(capture, tmp_path / "scene"))
+    for mask in (scene / "flow" / "1x" / "masks").glob("*.png"):
+        shape = np.asarray(Image.open(mask)).shape
+        Image.fromarray(np.full(shape, value, np.uint8)).save(mask)
+    code, _, stderr = run_cli(["train", "--data", str(scene), *SPLIT_RUN, "--out", str(tmp_path / "run")])
+    assert code == 2 and message in stderr and stderr.count("\n") == 1, stderr
+    with pytest.raises(LiquidGSError, match=message):
+        votes_for(scene)
+
+
+def test_the_viewer_draws_static_gaussians_blue_and_dynamic_ones_orange(capture, tmp_path):
+    from liquidgs.viewer.scenes import SPLIT_COLOURS, RunScene
+
+    out = tmp_path / "run"
+    run_train(["--data", str(capture), "--field", "mlp", *SPLIT_RUN, "--out", str(out)])
+    scene = RunScene(load_run(out), "split")
+    assert scene.has_split
+    frame = scene.dataset.train[0]
+    image = scene.render_split(frame.camera, frame.time).reshape(-1, 3)
+    covered = (image - scene.background).abs().sum(-1) > 0.3
+    nearest = torch.cdist(image[covered], SPLIT_COLOURS).argmin(dim=1)
+    assert (nearest == 0).sum() > 20 and (nearest == 1).sum() > 20  # both sets on screen
+
+
+def test_a_run_that_trains_from_the_flow_is_refused_once_the_flow_is_computed_otherwise(capture, tmp_path):
+    scene = Path(shutil.copytree(capture, tmp_path / "scene"))
+    out = tmp_path / "run"
+    run_train(["--data", str(scene), "--field", "mlp", *SPLIT_RUN, "--out", str(out)])
+    assert run_cli(["eval", "--run", str(out)])[0] == 0
+    record = scene / "flow" / "1x" / "flow.json"
+    record.write_text(record.read_text().replace("\"threshold_px\": 1.0", "\"threshold_px\": 2.0"))
+    code, _, stderr = run_cli(["eval", "--run", str(out)])
+    assert code == 2 and "1 file(s) changed, e.g. flow/1x/flow.json" in stderr, stderr
