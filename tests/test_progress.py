@@ -72,7 +72,7 @@ def test_data_flow_names_a_silent_stage_at_the_interval(tmp_path, monkeypatch):
     def slow_first(a, b, calls=[]):  # noqa: B006 - the calls made, across calls
         calls.append(1)
         if len(calls) == 1:
-            time.sleep(0.5)
+            time.sleep(1.0)
         return real_flow(a, b)
 
     monkeypatch.setattr(flow, "optical_flow", slow_first)
@@ -80,10 +80,11 @@ def test_data_flow_names_a_silent_stage_at_the_interval(tmp_path, monkeypatch):
     code, out, err = run_cli(["data", "flow", str(scene)])
     assert code == 0, err
     lines = out.splitlines()
-    still = [line for line in lines if line.startswith("data flow: still running")]
-    assert 2 <= len(still) <= 6, lines  # about 0.5 s of silence at 0.1 s
-    assert re.fullmatch(r"data flow: still running \(last: started\)  elapsed 0:00:00", still[0]), still
-    assert lines.index(still[-1]) < next(i for i, line in enumerate(lines) if line.startswith("flow: "))
+    first_count = next(i for i, line in enumerate(lines) if line.startswith("flow: "))
+    still = [line for line in lines[:first_count] if line.startswith("data flow: still running")]
+    # A second of silence in the first pair at 0.1 s: several lines (how many depends on the load).
+    assert len(still) >= 2, lines
+    assert all(re.fullmatch(r"data flow: still running \(last: started\)  elapsed \d:\d\d:\d\d", x) for x in still)
     monkeypatch.setattr(progress, "PLAIN_INTERVAL_S", 30.0)
     code, out, err = run_cli(["data", "flow", str(scene)])
     assert code == 0 and "still running" not in out, err
@@ -104,13 +105,15 @@ def test_data_video_names_colmaps_silent_feature_extraction_at_the_interval(tmp_
     real_extract = pycolmap.extract_features
 
     def slow_extract(*args, **kwargs):
-        time.sleep(0.5)
+        time.sleep(1.0)
         return real_extract(*args, **kwargs)
 
     monkeypatch.setattr(pycolmap, "extract_features", slow_extract)
     monkeypatch.setattr(progress, "PLAIN_INTERVAL_S", 0.1)
     code, out, err = run_cli(["data", "video", str(wall), "--out", str(tmp_path / "o"), "--threads", "1"])
     assert code == 2 and "COLMAP found no features" in err, err  # a blank wall: refused after the features
-    still = [line for line in out.splitlines() if line.startswith("data video: still running")]
-    assert 2 <= len(still) <= 6, out
-    assert still[0] == "data video: still running (last: extraction: 16 frames saved)  elapsed 0:00:00", still
+    # A second of silence in COLMAP's feature extraction at 0.1 s: several lines naming the stage before it.
+    still = re.findall(
+        r"^data video: still running \(last: extraction: 16 frames saved\)  elapsed \d:\d\d:\d\d$", out, re.M
+    )
+    assert len(still) >= 2, out

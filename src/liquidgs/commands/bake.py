@@ -102,6 +102,7 @@ def bake(args: BakeArgs, console: Console | None = None) -> dict:
         progress.update(task, completed=samples[0], keyframes=keyframes)
 
     most = most_samples(settings)
+    run.at_time(0.0)  # a diverged run: its one line before any progress line
     with make_progress(console or Console(quiet=True)) as progress:
         task = progress.add_task("bake", total=most, keyframes=settings.min_keyframes, gaussians=n)
         distilled = distil(run, settings, sampled)
