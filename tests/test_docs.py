@@ -349,3 +349,70 @@ def test_no_page_or_committed_report_names_a_machine_path(tmp_path):
     assert machine_paths(tmp_path) == ["docs/experiments/x/note.txt:2: /home/me/data",
                                        "docs/experiments/x/report.md:1: /tmp/exp1",
                                        "docs/experiments/x/tables.tex:1: /root/.cache/a.pth"]  # fmt: skip
+
+
+RESULTS_PAGE_LINES = 250
+"""A results page's most lines: its current figures; the runs behind them and what they superseded
+go to the measurement log (docs/results/log.md), which may be long."""
+README_LINES = 120
+
+
+def page_size_problems(root: Path) -> list[str]:
+    """'file: N lines (at most M)' for README.md and each results page but the log over its bound."""
+    bounds = {root / "README.md": README_LINES}
+    bounds |= {p: RESULTS_PAGE_LINES for p in sorted((root / "docs" / "results").glob("*.md")) if p.name != "log.md"}
+    sizes = {path: len(path.read_text().splitlines()) for path in bounds}
+    return [f"{p.relative_to(root)}: {n} lines (at most {bounds[p]})" for p, n in sizes.items() if n > bounds[p]]
+
+
+def test_the_readme_and_each_results_page_stay_short(tmp_path):
+    assert not page_size_problems(ROOT), page_size_problems(ROOT)
+    (tmp_path / "docs" / "results").mkdir(parents=True)
+    (tmp_path / "README.md").write_text("line\n" * README_LINES)
+    (tmp_path / "docs" / "results" / "log.md").write_text("line\n" * 1000)
+    (tmp_path / "docs" / "results" / "clips.md").write_text("line\n" * (RESULTS_PAGE_LINES + 1))
+    assert page_size_problems(tmp_path) == ["docs/results/clips.md: 251 lines (at most 250)"]
+
+
+# Words for how this project is built rather than how liquidgs is used: an issue number with no link,
+# the project's shared folder in a command a user would type.
+PROJECT_WORDS = re.compile(r"\b[Ii]ssues?\s+#?\d+|(?<![\w./])\.\./shared\b")
+
+
+def project_word_problems(root: Path) -> list[str]:
+    """'file:line: words' in README.md and the docs pages but development.md, which describes the
+    test suite's shared folder (../shared beside the clone) as the Makefile uses it."""
+    skip = {root / "docs" / "development.md"} | {root / "docs" / name for name in GENERATED}
+    files = [root / "README.md"] + sorted(p for p in (root / "docs").rglob("*.md") if p not in skip)
+    found = []
+    for path in files:
+        text = path.read_text()
+        for match in PROJECT_WORDS.finditer(text):  # the whole text: "issue" may end a line
+            number = text.count("\n", 0, match.start()) + 1
+            found.append(f"{path.relative_to(root)}:{number}: {' '.join(match[0].split())}")
+    return found
+
+
+def test_no_page_names_an_issue_number_or_the_projects_shared_folder(tmp_path):
+    assert not project_word_problems(ROOT), "\n".join(project_word_problems(ROOT))
+    (tmp_path / "docs").mkdir()
+    (tmp_path / "README.md").write_text("a bound issue 32 allows\nsee `issues/12`, the issue\n7 times\n")
+    (tmp_path / "docs" / "a.md").write_text("liquidgs experiment run mini --data-root ../shared/data/dnerf\n")
+    (tmp_path / "docs" / "development.md").write_text("tests read ../shared\n")
+    assert project_word_problems(tmp_path) == [
+        "README.md:1: issue 32",
+        "README.md:2: issue 7",
+        "docs/a.md:1: ../shared",
+    ]
+
+
+def test_the_site_widens_its_column_and_wraps_table_cells():
+    """The readthedocs theme's 800 px column and one-line cells cut wide tables (development.md)."""
+    config = (ROOT / "mkdocs.yml").read_text()
+    sheets = re.search(r"^extra_css:\n((?:  - .+\n)+)", config, re.M)
+    assert sheets, "mkdocs.yml has no extra_css"
+    css = "".join((DOCS / line.strip()[2:]).read_text() for line in sheets[1].splitlines())
+    css = re.sub(r"/\*.*?\*/", "", css, flags=re.S)
+    column = re.search(r"\.wy-nav-content\s*\{[^}]*max-width:\s*(\d+)px", css)
+    assert column and int(column[1]) >= 1366, "the content column must reach a 1366 px window's width"
+    assert re.search(r"\.wy-table-responsive table td[^{]*\{[^}]*white-space:\s*normal", css)

@@ -11,7 +11,9 @@ baked anyway and reported (which Gaussians, at which times). An 'sde' run is bak
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
+from functools import partial
 
 import torch
 
@@ -53,13 +55,24 @@ def check_finished(run, command: str) -> None:
         raise LiquidGSError(f"{run.run_dir}: {run.progress_label}; {command} needs a finished run")
 
 
-def sample_field(run, times: torch.Tensor) -> torch.Tensor:
-    """The field's deformed Gaussians [len(times), N, 10] (the noise off)."""
+def sample_field(run, times: torch.Tensor, on_sample: Callable[[], None] = lambda: None) -> torch.Tensor:
+    """The field's deformed Gaussians [len(times), N, 10] (the noise off); on_sample after each time."""
     states = []
     for t in times.tolist():
         g = run.at_time(t)
         states.append(pack_keyframe(g.means, g.quats, g.scales).float())
+        on_sample()
     return torch.stack(states)
+
+
+def most_samples(settings: BakeSettings) -> int:
+    """The field samples distil takes when the keyframes double up to the most allowed."""
+    count, samples = settings.min_keyframes, settings.min_keyframes
+    while True:
+        samples += count - 1
+        if 2 * count - 1 > settings.max_keyframes:
+            return samples
+        count = 2 * count - 1
 
 
 def interleave(keyframes: torch.Tensor, midpoints: torch.Tensor) -> torch.Tensor:
@@ -75,14 +88,15 @@ def midpoint_errors(keyframes: torch.Tensor, midpoints: torch.Tensor, times: tor
     return torch.stack([p[0] for p in pairs]), torch.stack([p[1] for p in pairs])
 
 
-def distil(run, settings: BakeSettings) -> Distilled:
+def distil(run, settings: BakeSettings, on_sample: Callable[[int], None] = lambda keyframes: None) -> Distilled:
+    """on_sample(keyframes) after each field sample, with the keyframe count being checked."""
     visible = torch.sigmoid(run.params["opacities"]).cpu() >= VISIBLE_OPACITY
     count = settings.min_keyframes
-    keyframes = align_quaternion_signs(sample_field(run, keyframe_times(count)).cpu())
+    keyframes = align_quaternion_signs(sample_field(run, keyframe_times(count), partial(on_sample, count)).cpu())
     while True:
         grid = keyframe_times(count)
         mid_times = (grid[:-1] + grid[1:]) / 2
-        midpoints = sample_field(run, mid_times).cpu()
+        midpoints = sample_field(run, mid_times, partial(on_sample, count)).cpu()
         relative, position = midpoint_errors(keyframes, midpoints, mid_times)
         relative = torch.where(visible[None, :], relative, torch.zeros_like(relative))
         if bool((relative <= settings.tolerance).all()) or 2 * count - 1 > settings.max_keyframes:

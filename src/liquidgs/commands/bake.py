@@ -23,9 +23,10 @@ from pathlib import Path
 from rich.console import Console
 
 from liquidgs.atomic import build_atomically, save_torch_atomic, write_json_atomic, write_text_atomic
-from liquidgs.bake.distil import BakeSettings, check_finished, describe_over_budget, distil
+from liquidgs.bake.distil import BakeSettings, check_finished, describe_over_budget, distil, most_samples
 from liquidgs.bake.motion import CHANNELS
 from liquidgs.bake.scene import BAKED_FORMAT, MANIFEST, SCENE, is_baked
+from liquidgs.commands.progress import progress_for
 from liquidgs.data.cameras_file import CAMERAS_FILE, cameras_record
 from liquidgs.data.capture import refuse_taken
 from liquidgs.errors import ConfigError, LiquidGSError, check_finite
@@ -70,19 +71,48 @@ def check_args(args: BakeArgs) -> Path:
     return out
 
 
+def make_progress(console: Console):
+    """The sampling bar on a terminal; plain lines to a file or a pipe (commands.progress). Its total is
+    the samples of the most keyframes allowed, so its ETA is the longest the bake can take."""
+
+    def line(task: dict) -> str:
+        return (
+            f"{task['description']} {task['completed']}/{task['total']} field samples  keyframes {task['keyframes']}"
+            f"  Gaussians {task['gaussians']:,}"
+        )
+
+    counts, fields = (
+        "{task.completed}/{task.total} field samples",
+        "keyframes {task.fields[keyframes]}  #G {task.fields[gaussians]}",
+    )
+    return progress_for(console, counts, fields, line, eta="ETA at most")
+
+
 def bake(args: BakeArgs, console: Console | None = None) -> dict:
     out = check_args(args)
     run = load_run(args.run, args.device)
     check_finished(run, "bake")
     cameras = cameras_record(run.scene())  # the scene checked against the run's print first
     settings = BakeSettings(args.tolerance, args.min_keyframes, args.max_keyframes)
-    distilled = distil(run, settings)
+    n = run.params["means"].shape[0]
+    samples = [0]
+
+    def sampled(keyframes: int) -> None:
+        samples[0] += 1
+        progress.update(task, completed=samples[0], keyframes=keyframes)
+
+    most = most_samples(settings)
+    run.at_time(0.0)  # a diverged run: its one line before any progress line
+    with make_progress(console or Console(quiet=True)) as progress:
+        task = progress.add_task("bake", total=most, keyframes=settings.min_keyframes, gaussians=n)
+        distilled = distil(run, settings, sampled)
+        if samples[0] < most:  # the budget met before the most keyframes: done at the samples taken
+            progress.update(task, total=samples[0], completed=samples[0])
     payload = {
         "params": {k: run.params[k].detach().cpu().contiguous() for k in PARAM_KEYS},
         "keyframes": distilled.keyframes.contiguous(),
     }
     check_finite(args.run, "the Gaussians and their keyframes", [*payload["params"].values(), payload["keyframes"]])
-    n = run.params["means"].shape[0]
     manifest = {
         "format": BAKED_FORMAT,
         "source": run.source(),

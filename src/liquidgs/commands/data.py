@@ -9,7 +9,9 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 
 import tyro
+from rich.console import Console
 
+from liquidgs.commands.progress import StageLog
 from liquidgs.data import DataConfig, check_dataset, generate_synthetic
 from liquidgs.data.capture import training_downscale
 from liquidgs.data.colmap import Matcher, SolveOptions, import_pycolmap
@@ -228,7 +230,8 @@ def _capture(args: CaptureArgs, source: Path, video: bool, fps: float | None = N
         keep_distortion=args.keep_distortion,
         flow=args.flow,
     )
-    summary = capture_scene(source, args.out, settings, lambda line: print(line, flush=True), video=video)
+    with StageLog(Console(), f"data {'video' if video else 'images'}") as log:
+        summary = capture_scene(source, args.out, settings, log, video=video)
     print(
         f"done: {summary.frames_registered}/{summary.frames_total} frames registered"
         + (f" ({len(summary.dropped)} dropped, listed in capture.json)" if summary.dropped else "")
@@ -261,7 +264,8 @@ def flow(args: FlowArgs) -> int:
     if args.downscale is not None and args.downscale < 1:
         raise ConfigError(f"--downscale must be a positive integer, got {args.downscale}")
     downscale = args.downscale or training_downscale(scene_image_size(args.scene))
-    summary = compute_scene_flow(args.scene, downscale, lambda line: print(line, flush=True))
+    with StageLog(Console(), "data flow") as log:
+        summary = compute_scene_flow(args.scene, downscale, log)
     width, height = summary.size
     print(
         f"done: {summary.pairs} flow pairs and {summary.masks} motion masks at {width}x{height} "
@@ -275,7 +279,8 @@ def undistort(args: UndistortArgs) -> int:
     from liquidgs.data.undistort import undistort_scene
 
     import_pycolmap()  # fail before any work when it is missing
-    summary = undistort_scene(args.scene, args.out, lambda line: print(line, flush=True))
+    with StageLog(Console(), "data undistort") as log:
+        summary = undistort_scene(args.scene, args.out, log)
     folders = " ".join(f"{factor}x" for factor in summary.folders)
     width, height = summary.image_size
     print(

@@ -19,7 +19,6 @@ from typing import Literal
 
 import tyro
 from rich.console import Console
-from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
 from liquidgs.commands.progress import progress_for
 from liquidgs.errors import ConfigError
@@ -106,22 +105,12 @@ def run(args: RunArgs, console: Console) -> int:
         f"-> {experiment.directory}"
     )
     outcomes: list[RunOutcome] = []
-    def live() -> Progress:
-        return Progress(
-            TextColumn("[bold]{task.description}"),
-            BarColumn(),
-            TextColumn("{task.completed}/{task.total} runs"),
-            TimeElapsedColumn(),
-            TextColumn("ETA"),
-            TimeRemainingColumn(),
-            TextColumn("{task.fields[last]}"),
-            console=console,
-        )
 
     def line(task: dict) -> str:
         return f"{task['description']}: {task['completed']}/{task['total']} runs  {task['last']}".rstrip()
 
-    with progress_for(console, live, line, every_update=True) as progress:
+    counts, fields = "{task.completed}/{task.total} runs", "{task.fields[last]}"
+    with progress_for(console, counts, fields, line, every_update=True) as progress:
         task = progress.add_task(spec.name, total=len(experiment.runs), last="")
 
         def record(outcome: RunOutcome) -> None:

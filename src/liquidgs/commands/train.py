@@ -21,7 +21,6 @@ from pathlib import Path
 
 import torch
 from rich.console import Console
-from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
 from liquidgs.commands.progress import progress_for
 from liquidgs.errors import ConfigError
@@ -120,26 +119,15 @@ def resolve_config(argv: list[str]) -> tuple[TrainConfig, Path]:
 def make_progress(console: Console):
     """The training bar on a terminal; plain lines to a file or a pipe (commands.progress)."""
 
-    def live() -> Progress:
-        return Progress(
-            TextColumn("[bold]{task.description}"),
-            BarColumn(),
-            TextColumn("{task.completed}/{task.total}"),
-            TimeElapsedColumn(),
-            TextColumn("ETA"),
-            TimeRemainingColumn(),
-            TextColumn("loss {task.fields[loss]:.4f}  PSNR {task.fields[psnr]:.2f}  #G {task.fields[gaussians]}"),
-            console=console,
-            transient=False,
-        )
-
     def line(task: dict) -> str:
         return (
             f"{task['description']} {task['completed']}/{task['total']}  loss {task['loss']:.4f}  "
             f"PSNR {task['psnr']:.2f}  Gaussians {task['gaussians']:,}"
         )
 
-    return progress_for(console, live, line)
+    counts = "{task.completed}/{task.total}"
+    fields = "loss {task.fields[loss]:.4f}  PSNR {task.fields[psnr]:.2f}  #G {task.fields[gaussians]}"
+    return progress_for(console, counts, fields, line)
 
 
 def interrupted_message(trainer: Trainer, run_dir: Path) -> str:
