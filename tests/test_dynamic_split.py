@@ -3,6 +3,7 @@ moved, labels carried by densification and resumed bit-exactly."""
 
 from __future__ import annotations
 
+import json
 import shutil
 from pathlib import Path
 
@@ -174,8 +175,15 @@ def test_a_run_that_trains_from_the_flow_is_refused_once_the_flow_is_computed_ot
     scene = Path(shutil.copytree(capture, tmp_path / "scene"))
     out = tmp_path / "run"
     run_train(["--data", str(scene), "--field", "mlp", *SPLIT_RUN, "--out", str(out)])
-    assert run_cli(["eval", "--run", str(out)])[0] == 0
+    assert run_cli(["eval", "--run", str(out), "--flow-error"])[0] == 0
+    scored = json.loads((out / "eval.json").read_text())["flow_error"]
+    assert scored["pairs"] > 0 and scored["consistent_px"] >= 0 and scored["cameras"] == "as given"
     record = scene / "flow" / "1x" / "flow.json"
     record.write_text(record.read_text().replace("\"threshold_px\": 1.0", "\"threshold_px\": 2.0"))
     code, _, stderr = run_cli(["eval", "--run", str(out)])
     assert code == 2 and "1 file(s) changed, e.g. flow/1x/flow.json" in stderr, stderr
+
+
+def test_the_flow_error_of_a_run_on_d_nerf_is_one_line(tiny_mlp_run):
+    code, _, stderr = run_cli(["eval", "--run", str(tiny_mlp_run), "--flow-error"])
+    assert code == 2 and "is not a capture with optical flow" in stderr and stderr.count("\n") == 1, stderr

@@ -12,6 +12,9 @@ exposure), under "aligned" (its "cameras" says how).
 --mask DIR adds PSNR / SSIM inside and outside per-view masks of the moving subject, under "masked"
 (cameras as given) and, for a run that refined its cameras, "masked_aligned" (test cameras aligned);
 --mask auto takes the scene's own motion masks (`data flow`: flow/<k>x/masks at the run's scale).
+--flow-error adds, under "flow_error", the end-point error of the Gaussians' rendered motion against
+the scene's measured flow over the train pairs (train cameras as given), over the consistent pixels
+and inside the motion masks.
 """
 
 from __future__ import annotations
@@ -20,11 +23,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
+import numpy as np
 import torch
 from rich.console import Console
 
 from liquidgs.atomic import write_json_atomic
-from liquidgs.data.flow import AUTO_MASKS, scene_motion_masks
+from liquidgs.data.flow import AUTO_MASKS, image_scale, read_flow_pairs, read_motion_masks, scene_motion_masks
+from liquidgs.data.nerfies import RGB_FOLDER
 from liquidgs.errors import ConfigError
 from liquidgs.eval import LPIPS, LPIPSUnavailable, describe_lpips, evaluate_views
 from liquidgs.eval.masks import masked_scores, read_masks
@@ -32,6 +37,7 @@ from liquidgs.eval.metrics import quantize_8bit
 from liquidgs.settings import parse_flags
 from liquidgs.train.camera_opt import aligned_render
 from liquidgs.train.dataset import load_run_dataset
+from liquidgs.train.flow_loss import flow_error
 from liquidgs.train.model import render_frame
 from liquidgs.train.run import load_run
 from liquidgs.train.run_folder import EVAL, EVAL_PER_VIEW, check_scene_print, write_per_view
@@ -60,6 +66,10 @@ class EvalArgs:
     empty; every view's empty, or every pixel covered, is refused. Scores inside and outside them,
     with the cameras as given. `auto`: the scene's own motion masks (flow/<k>x/masks at the run's
     scale, made by `data video` or `data flow`), checked against the frames they were computed from."""
+    flow_error: bool = False
+    """Also score the Gaussians' rendered motion: its end-point error (pixels) against the scene's
+    measured optical flow between neighbouring train frames, both ways, over the pixels where the flow
+    is consistent and inside the motion masks (needs the flow at the run's scale: `data flow`)."""
 
 
 def evaluate_run(args: EvalArgs) -> dict:
@@ -88,6 +98,7 @@ def evaluate_run(args: EvalArgs) -> dict:
     views = dataset.splits[args.split]
     mask_dir = scene_motion_masks(cfg.data.path, views) if str(args.mask) == AUTO_MASKS else args.mask
     masks = read_masks(mask_dir, views) if mask_dir is not None else None  # checked before any work
+    flow = _flow_evidence(cfg.data.path, dataset.train) if args.flow_error else None
     renders, aligned_renders = [], []
     render = _keeping(lambda frame: run.render(frame.camera, frame.time, background).rgb, renders)
     summary, per_view = evaluate_views(render, views, lpips=lpips, lpips_error=lpips_error, quantize=quantize)
@@ -131,9 +142,19 @@ def evaluate_run(args: EvalArgs) -> dict:
         if aligned is not None:  # a refined model's test cameras as given miss it by its refinement: both, labelled
             record["masked_aligned"] = {"masks": str(mask_dir), "cameras": aligned["cameras"],
                                         **masked_scores(shown(aligned_renders), truths, masks)}  # fmt: skip
+    if flow is not None:
+        record["flow_error"] = flow_error(run.at_time, dataset.train, *flow, backend=cfg.backend)
     write_json_atomic(args.run / EVAL, record)
     write_per_view(args.run / EVAL_PER_VIEW, run.iteration, per_view, record["source"])
     return record
+
+
+def _flow_evidence(scene: Path, train: list) -> tuple[list, np.ndarray]:
+    """The scene's flow pairs and the train frames' motion masks at the run's scale (checked: missing
+    or stale is one line)."""
+    if not train or train[0].image_path.parent.parent.name != RGB_FOLDER:
+        raise ConfigError(f"--flow-error: {scene} is not a capture with optical flow (data flow reads captures)")
+    return read_flow_pairs(scene, image_scale(scene, train)), read_motion_masks(scene, train)
 
 
 def main(argv: list[str]) -> int:
@@ -176,4 +197,11 @@ def _more_lines(record: dict) -> list[str]:
             ssim = "n/a" if m["ssim"] is None else f"{m['ssim']:.4f}"
             lines.append(f"  {region} the masks ({100 * m['share']:.1f}% of pixels), {cameras}: "
                          f"PSNR {psnr}  SSIM {ssim}")  # fmt: skip
+    if "flow_error" in record:
+        f = record["flow_error"]
+        px = {key: "n/a" if f[key + "_px"] is None else f"{f[key + '_px']:.2f} px"
+              for key in ("consistent", "inside_masks")}  # fmt: skip
+        lines.append(f"  rendered motion against the measured flow ({f['pairs']} train pairs, both ways, cameras as "
+                     f"given): end-point error {px['consistent']} where consistent, {px['inside_masks']} inside the "
+                     "motion masks")  # fmt: skip
     return lines

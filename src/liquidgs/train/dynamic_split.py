@@ -27,9 +27,8 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from PIL import Image
 
-from liquidgs.data.flow import scene_motion_masks
+from liquidgs.data.flow import read_motion_masks, scene_motion_masks
 from liquidgs.data.scene import Frame
 from liquidgs.errors import ConfigError, DataError, check_integer, check_number
 
@@ -86,14 +85,8 @@ class MotionVotes:
     def __init__(self, cfg: SplitConfig, scene: Path, frames: list[Frame], scene_extent: float, device):
         self.cfg = cfg
         self.scene_extent = scene_extent
-        folder = scene_motion_masks(scene, frames)  # missing or stale: one line naming the command
-        masks = []
-        for frame in frames:
-            path = folder / f"{frame.name}.png"
-            if not path.is_file():
-                raise DataError(path, "no motion mask for this train frame; compute them again: liquidgs data flow")
-            masks.append(np.asarray(Image.open(path)) > 127)
-        self.masks = torch.from_numpy(np.stack(masks)).to(device)
+        self.masks = torch.from_numpy(read_motion_masks(scene, frames)).to(device)
+        folder = scene_motion_masks(scene, frames)
         share = float(self.masks.float().mean())
         if share == 0.0:
             raise DataError(folder, "the motion masks hold no pixel: nothing moves for the split to find")

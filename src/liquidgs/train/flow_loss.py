@@ -110,3 +110,41 @@ def project(means: torch.Tensor, camera: Camera) -> torch.Tensor:
 
 def _tensor(array: np.ndarray, device: torch.device) -> torch.Tensor:
     return torch.from_numpy(np.ascontiguousarray(array)).to(device)
+
+
+@torch.no_grad()
+def flow_error(at_time, frames: list, pairs: list[FlowPair], masks: np.ndarray, backend: str = "auto") -> dict:
+    """The end-point error (pixels) of the Gaussians' rendered motion (`at_time(t)`: the Gaussians at
+    t) against the measured flow of every pair of train frames, both ways, with the cameras as given:
+    over the pixels where the flow is consistent and the render opaque, and over those of them inside
+    the first frame's motion mask (`masks` [F, H, W] in `frames` order)."""
+    index = {frame.name: i for i, frame in enumerate(frames)}
+    gaussians: dict[str, Deformed] = {}
+
+    def at(name: str) -> Deformed:
+        if name not in gaussians:
+            gaussians[name] = at_time(frames[index[name]].time)
+        return gaussians[name]
+
+    sums = {"consistent": [0.0, 0], "inside_masks": [0.0, 0]}
+    used = 0
+    for pair in pairs:
+        if pair.first not in index or pair.second not in index:
+            continue
+        used += 1
+        directions = ((pair.first, pair.second, pair.forward, pair.forward_consistent),
+                      (pair.second, pair.first, pair.backward, pair.backward_consistent))  # fmt: skip
+        for a, b, measured, consistent in directions:
+            frame_a, frame_b = frames[index[a]], frames[index[b]]
+            rendered, alpha = rendered_flow(at(a), frame_a.camera, at(b), frame_b.camera, backend)
+            error = (rendered.cpu() - torch.from_numpy(measured)).norm(dim=-1)
+            use = torch.from_numpy(consistent) & (alpha.cpu() >= MIN_ALPHA)
+            inside = use & torch.from_numpy(masks[index[a]])
+            for key, region in (("consistent", use), ("inside_masks", inside)):
+                sums[key][0] += float(error[region].sum())
+                sums[key][1] += int(region.sum())
+    record = {"pairs": used, "cameras": "as given"}
+    for key, (total, pixels) in sums.items():
+        record[f"{key}_px"] = total / pixels if pixels else None
+        record[f"{key}_pixels"] = pixels
+    return record
