@@ -18,7 +18,8 @@ background's gradient, `means2d.absgrad`) runs as it does on a GPU.
 - Tile intersection and offsets: `_torch_impl._isect_tiles` (then a stable sort, as CUB's radix
   sort is) and `_isect_offset_encode`.
 - rasterize_to_pixels has no usable torch version in gsplat, so it is written here after
-  RasterizeToPixels3DGSFwd.cu / Bwd.cu: per tile, the tile's Gaussians front to back against its
+  RasterizeToPixels3DGSFwd.cu / Bwd.cu, for any number of channels the kernels are compiled for
+  (colours or extra features, KERNEL_CHANNELS): per tile, the tile's Gaussians front to back against its
   pixels (centres at +0.5), alpha = min(0.999, o exp(-sigma)), fragments with sigma < 0 or alpha <
   1/255 skipped, a pixel done (that Gaussian excluded) when the transmittance would fall to 1e-4 or
   below, colours + T * background. Its backward recomputes that with autograd; means2d enters every
@@ -54,6 +55,9 @@ MAX_ALPHA = 0.999
 TRANSMITTANCE_STOP = 1e-4  # a pixel is done once T * (1 - alpha) <= this
 MAX_EXTENT = 3.33
 UNWRITTEN = float("nan")  # what the kernels leave in rows they skip (uninitialised on a GPU)
+# The channel counts rasterize_to_pixels' kernels are compiled for (Rasterization.cpp's switch; any
+# other is "Unsupported number of channels"): gsplat's Python wrapper pads colours up to one of them.
+KERNEL_CHANNELS = (1, 2, 3, 4, 5, 8, 9, 16, 17, 32, 33, 64, 65, 128, 129, 256, 257, 512, 513)
 
 calls: Counter[str] = Counter()
 
@@ -319,6 +323,7 @@ def rasterize_to_pixels_3dgs_fwd(
     calls["rasterize_to_pixels_3dgs_fwd"] += 1
     _check(masks is None, "no tile masks")
     _check(means2d.dim() == 3, "not packed")
+    _check(colors.shape[-1] in KERNEL_CHANNELS, f"Unsupported number of channels: {colors.shape[-1]}")
     _contiguous(means2d, conics, colors, opacities, backgrounds, tile_offsets, flatten_ids)
     render_colors, render_alphas, last_ids = _composite(
         means2d, conics, colors, opacities, backgrounds, width, height, tile_size, tile_offsets, flatten_ids
@@ -334,6 +339,7 @@ def rasterize_to_pixels_3dgs_bwd(
 ):  # fmt: skip
     calls["rasterize_to_pixels_3dgs_bwd"] += 1
     _check(masks is None, "no tile masks")
+    _check(colors.shape[-1] in KERNEL_CHANNELS, f"Unsupported number of channels: {colors.shape[-1]}")
     _contiguous(means2d, conics, colors, opacities, backgrounds, tile_offsets, flatten_ids, v_render_colors)
     fragments: list[tuple[int, Tensor]] = []
     with torch.enable_grad():

@@ -1,4 +1,4 @@
-"""The optical-flow loss (train.flow_loss): the Gaussians' screen motion, composited like colour."""
+"""The optical-flow loss (train.flow_loss): the Gaussians' screen motion, composited in the colour pass."""
 
 from __future__ import annotations
 
@@ -6,10 +6,12 @@ import numpy as np
 import pytest
 import torch
 
+import gsplat_cpu_kernels
 from liquidgs.cameras import Camera
 from liquidgs.data.flow import FlowPair
+from liquidgs.render import cpu_backend, gsplat_backend
 from liquidgs.train.flow_loss import FlowLoss, project, rendered_flow
-from liquidgs.train.model import Deformed
+from liquidgs.train.model import Deformed, render_frame
 
 WIDTH, HEIGHT, FOCAL = 48, 32, 40.0
 
@@ -31,22 +33,38 @@ def two_gaussians(shift: torch.Tensor | None = None) -> Deformed:
         quats=torch.tensor([[1.0, 0, 0, 0]] * 2, dtype=torch.float64),
         scales=torch.full((2, 3), 0.25, dtype=torch.float64),
         opacities=torch.full((2,), 0.999, dtype=torch.float64),
-        colors=torch.zeros(2, 3, dtype=torch.float64),
+        colors=torch.zeros(2, 1, 3, dtype=torch.float64),  # SH degree 0
     )
 
 
-def test_the_composited_flow_of_two_gaussians_is_their_own_motion():
-    now = two_gaussians()
+@pytest.fixture
+def gsplat_on_the_cpu(monkeypatch, one_torch_thread):
+    """gsplat's kernels stood in for on the CPU (tests/gsplat_cpu_kernels.py); liquidgs told they run."""
+    gsplat_cpu_kernels.install(monkeypatch)
+    monkeypatch.setattr(gsplat_backend, "unavailable_reason", lambda means: None)
+
+
+CPU_KERNEL = pytest.mark.skipif(cpu_backend.unavailable_reason() is not None, reason="no compiled CPU rasteriser")
+BACKENDS = ["torch", pytest.param("cpu", marks=CPU_KERNEL), "gsplat"]
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_the_composited_flow_of_two_gaussians_is_their_own_motion(backend, request):
+    dtype = torch.float64
+    if backend == "gsplat":
+        request.getfixturevalue("gsplat_on_the_cpu")
+        dtype = torch.float32  # gsplat rasterises float32 only
+    now = Deformed(**{key: value.to(dtype) for key, value in vars(two_gaussians()).items()})
     shift = torch.tensor([[0.2, 0.0, 0.0], [0.0, -0.1, 0.0]], dtype=torch.float64)
-    later = two_gaussians(shift)
-    flow, alpha = rendered_flow(now, camera(), later, camera(0.1), backend="torch")
+    later = Deformed(**{key: value.to(dtype) for key, value in vars(two_gaussians(shift)).items()})
+    flow, alpha = rendered_flow(now, camera(), later, camera(0.1), backend=backend)
     expected = project(later.means, camera(0.1)) - project(now.means, camera())
     assert expected[0].tolist() == pytest.approx([(0.2 - 0.1) * FOCAL / 4, 0.0])  # its move less the camera's
     assert expected[1].tolist() == pytest.approx([-0.1 * FOCAL / 4, -0.1 * FOCAL / 4])
     for centre, motion in zip(project(now.means, camera()), expected):
         col, row = int(centre[0]), int(centre[1])
         assert alpha[row, col] > 0.9
-        assert flow[row, col].tolist() == pytest.approx(motion.tolist(), abs=1e-6)
+        assert flow[row, col].tolist() == pytest.approx(motion.tolist(), abs=1e-6 if dtype == torch.float64 else 1e-4)
     assert alpha[0, 0] < 1e-3  # a corner no Gaussian covers
 
 
@@ -72,12 +90,15 @@ def test_the_loss_is_zero_for_the_true_flow_and_the_l1_of_the_error_otherwise():
     valid = np.ones((HEIGHT, WIDTH), bool)
     measured = flow.detach().numpy().astype(np.float32)
     pair = FlowPair("a", "b", measured, -measured, valid, valid)
-    loss = FlowLoss(0.5, [pair], ["a", "b"], torch.device("cpu"), "torch")
+    loss = FlowLoss(0.5, [pair], ["a", "b"], torch.device("cpu"))
     target = loss.target(0, np.random.default_rng(0))
     assert target.neighbour == 1 and loss.target(1, np.random.default_rng(0)).neighbour == 0
-    assert float(loss.loss(now, camera(), later, camera(0.1), target)) == pytest.approx(0.0, abs=1e-6)
+    drawn = loss.draw(now, camera(), later, camera(0.1), target)
+    background = torch.zeros(3, dtype=torch.float64)
+    out = render_frame(now, camera(), sh_degree=0, background=background, backend="torch", features=drawn.motion)
+    assert float(loss.loss(out, drawn)) == pytest.approx(0.0, abs=1e-6)
     target.flow = target.flow + torch.tensor([1.0, -2.0])
-    assert float(loss.loss(now, camera(), later, camera(0.1), target)) == pytest.approx(0.5 * 1.5, rel=1e-5)
+    assert float(loss.loss(out, drawn)) == pytest.approx(0.5 * 1.5, rel=1e-5)
     target.valid = torch.zeros_like(target.valid)
-    assert loss.loss(now, camera(), later, camera(0.1), target) is None  # nothing to compare
+    assert loss.loss(out, drawn) is None  # nothing to compare
     assert loss.target(7, np.random.default_rng(0)) is None  # a frame without flow

@@ -18,6 +18,7 @@ import torch
 
 import gsplat_cpu_kernels as kernels
 from liquidgs.render import cpu_backend, gsplat_backend, rasterize
+from liquidgs.render.contract import MAX_EXTRA_FEATURES
 
 WIDTH, HEIGHT = 32, 24
 PARAMETERS = ("means", "quats", "scales", "opacities", "colors")
@@ -105,18 +106,20 @@ def make_scene(dtype: torch.dtype, sh_degree: int | None, n_random: int = 36, se
 
 
 def render(scene: dict, backend: str, **kwargs):
-    """Render with gradients of a weighted loss on rgb, alpha and depth: (output, gradients)."""
-    leaves = {key: scene[key].clone().requires_grad_(True) for key in (*PARAMETERS, "background")}
+    """Render with gradients of a weighted loss on rgb, alpha, depth and the scene's extra features,
+    if it has them: (output, gradients)."""
+    names = (*PARAMETERS, "background") + (("features",) if "features" in scene else ())
+    leaves = {key: scene[key].clone().requires_grad_(True) for key in names}
     out = rasterize(
         leaves["means"], leaves["quats"], leaves["scales"], leaves["opacities"], leaves["colors"],
-        scene["viewmat"], scene["K"], WIDTH, HEIGHT, sh_degree=scene["sh_degree"],
+        scene["viewmat"], scene["K"], WIDTH, HEIGHT, sh_degree=scene["sh_degree"], features=leaves.get("features"),
         background=leaves["background"], backend=backend, absgrad=True, **kwargs,
     )  # fmt: skip
     generator = torch.Generator().manual_seed(1)
-    images = [out.rgb, out.alpha, out.depth]
+    images = [out.rgb, out.alpha, out.depth] + ([] if out.features is None else [out.features])
     weights = [torch.randn(image.shape, generator=generator, dtype=torch.float64) for image in images]
     loss = sum(scale * (image * weight.to(image.dtype)).sum()
-               for scale, image, weight in zip((1.0, 1.0, 0.1), images, weights))  # fmt: skip
+               for scale, image, weight in zip((1.0, 1.0, 0.1, 0.3), images, weights))  # fmt: skip
     loss.backward()
     means2d = out.info["means2d"]
     grads = {key: leaf.grad for key, leaf in leaves.items()}
@@ -142,6 +145,9 @@ def assert_same_render(ours, our_grads, theirs, their_grads, rtol: float) -> Non
     assert torch.equal(theirs.info["radii_xy"], ours.info["radii_xy"]), "radii differ"
     for name in ("rgb", "alpha", "depth"):
         assert_close(getattr(theirs, name), getattr(ours, name), rtol, name)
+    assert (theirs.features is None) == (ours.features is None), "features"
+    if ours.features is not None:
+        assert_close(theirs.features, ours.features, rtol, "features")
     for name, expected in our_grads.items():
         assert_close(their_grads[name], expected, rtol, f"gradient of {name}")
 
@@ -182,6 +188,32 @@ def test_gsplat_backend_matches_torch_backend(stand_in, dtype, sh_degree):
     # absgrad sums |per-pixel gradient|, so it bounds |grad| and differs from it.
     assert (means2d.absgrad >= means2d.grad.abs() * (1 - 1e-6)).all()
     assert (means2d.absgrad > means2d.grad.abs() * 1.01).any()
+
+
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32], ids=["float64", "float32"])
+@pytest.mark.parametrize("n_features", [1, 2, MAX_EXTRA_FEATURES])
+def test_extra_features_through_gsplat_match_the_torch_backend(stand_in, dtype, n_features):
+    """RGB + depth + 1, 2 or 4 extra channels: 5 and 8 go to gsplat's kernels as they are, 6 padded to 8
+    by its wrapper (and the padding cut off again); gradients to the features and through the weights."""
+    scene = make_scene(dtype, 1)
+    generator = torch.Generator().manual_seed(2)
+    scene["features"] = torch.randn(scene["means"].shape[0], n_features, generator=generator).to(dtype)
+    ours, our_grads = render(scene, "torch")
+    theirs, their_grads = render(scene, "gsplat")
+    assert theirs.features.shape == (HEIGHT, WIDTH, n_features)
+    assert ours.features.abs().max() > 0.5 and our_grads["features"].abs().max() > 0
+    assert_same_render(ours, our_grads, theirs, their_grads, TOLERANCES[dtype])
+
+
+def test_the_stand_in_refuses_a_channel_count_gsplat_has_no_kernel_for(stand_in):
+    scene = make_scene(torch.float32, None)
+    n = scene["means"].shape[0]
+    means2d, conics = torch.zeros(1, n, 2), torch.zeros(1, n, 3)
+    offsets, ids = torch.zeros(1, 2, 2, dtype=torch.int32), torch.zeros(0, dtype=torch.int32)
+    with pytest.raises(kernels.StandInError, match="Unsupported number of channels: 6"):
+        kernels.rasterize_to_pixels_3dgs_fwd(
+            means2d, conics, torch.zeros(1, n, 6), torch.ones(1, n), None, None, WIDTH, HEIGHT, 16, offsets, ids
+        )
 
 
 # ---------------------------------------------------------------- the mapping, broken on purpose

@@ -66,6 +66,15 @@ def random_scene(
 
 def reference_render(scene: dict, background=None, near_plane=0.01, far_plane=1e10, eps2d=0.3):
     """Every pixel against every Gaussian, projected by gsplat's PyTorch reference implementation."""
+    accumulated, alpha = reference_composite(scene, None, near_plane, far_plane, eps2d)
+    if background is None:
+        background = torch.zeros(3, dtype=alpha.dtype)
+    rgb = accumulated[..., :3] + (1.0 - alpha) * background
+    return rgb, alpha, accumulated[..., 3:] / alpha.clamp_min(1e-10)
+
+
+def reference_composite(scene: dict, extra=None, near_plane=0.01, far_plane=1e10, eps2d=0.3):
+    """The dense reference's ([H,W,4+C] sums of w * (RGB, depth, extra [N,C])), [H,W,1] alpha)."""
     width, height = scene["width"], scene["height"]
     covars, _ = _quat_scale_to_covar_preci(scene["quats"], scene["scales"], compute_preci=False)
     radii, means2d, depths, conics, _ = _fully_fused_projection(
@@ -78,13 +87,9 @@ def reference_render(scene: dict, background=None, near_plane=0.01, far_plane=1e
         camera_centre = torch.inverse(scene["viewmat"])[:3, 3]
         dirs = scene["means"] - camera_centre
         colors = torch.clamp_min(_spherical_harmonics(scene["sh_degree"], dirs, colors) + 0.5, 0.0)
-    features = torch.cat([colors, depths[:, None]], dim=1)
+    features = torch.cat([colors, depths[:, None]] + ([] if extra is None else [extra]), dim=1)
     visible = (radii > 0).all(dim=-1)
-    accumulated, alpha = composite_dense(means2d, conics, scene["opacities"], features, depths, visible, width, height)
-    if background is None:
-        background = torch.zeros(3, dtype=alpha.dtype)
-    rgb = accumulated[..., :3] + (1.0 - alpha) * background
-    return rgb, alpha, accumulated[..., 3:] / alpha.clamp_min(1e-10)
+    return composite_dense(means2d, conics, scene["opacities"], features, depths, visible, width, height)
 
 
 def render(scene: dict, **kwargs) -> RenderOutput:

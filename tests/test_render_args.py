@@ -102,3 +102,21 @@ def test_colors_and_sh_degree_mismatch():
 def test_bad_tile_size():
     with pytest.raises(ValueError, match="tile_size must be an integer >= 1"):
         call(valid_arguments(), tile_size=0)
+
+
+@pytest.mark.parametrize(
+    ("features", "message"),
+    [
+        (torch.zeros(4), r"features must have shape \[N,C\] with N=4, 1 <= C <= 4, got \[4\]"),
+        (torch.zeros(3, 2), r"features must have shape \[N,C\] with N=4, 1 <= C <= 4, got \[3, 2\]"),
+        (torch.zeros(4, 0), r"features must have 1 to 4 channels, got shape \[4, 0\]"),
+        (torch.zeros(4, 5), r"features must have 1 to 4 channels, got shape \[4, 5\]"),
+        (torch.zeros(4, 2, dtype=torch.int64), "features must be a floating-point tensor"),
+        (torch.tensor([[0.0, 1.0]] * 3 + [[float("nan"), 0.0]]), "features contains NaN or inf"),
+        ([[0.0, 0.0]] * 4, "features must be a torch.Tensor"),
+    ],
+)
+def test_bad_features(features, message):
+    with pytest.raises(ValueError, match=message):
+        call(valid_arguments(), features=features)
+    assert call(valid_arguments(), features=torch.zeros(4, 4)).features.shape == (16, 16, 4)

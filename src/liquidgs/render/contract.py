@@ -2,8 +2,9 @@
 backend returns, its `info` built here for all of them.
 
 A backend is a module with `unavailable_reason(means) -> str | None` (None: it runs on means'
-device and dtype) and `render(means, quats, scales, opacities, colors, viewmat, K, width, height,
-options) -> RenderOutput`; `rasterize` has validated and moved the inputs to means' device and dtype.
+device and dtype) and `render(means, quats, scales, opacities, colors, features, viewmat, K, width,
+height, options) -> RenderOutput`, features being None or the extra channels [N, C] it composites
+in the same pass as colour; `rasterize` has validated and moved the inputs to means' device and dtype.
 """
 
 from __future__ import annotations
@@ -30,6 +31,10 @@ class RasterOptions:
     chunk_elements: int  # bounds the torch backend's memory; the others ignore it
 
 
+MAX_EXTRA_FEATURES = 4
+"""The most extra feature channels one `rasterize` call composites (the compiled CPU kernel is built
+for each count up to this; a screen motion takes 2)."""
+
 # gsplat's "ED" depth divides by alpha clamped at this value.
 DEPTH_ALPHA_FLOOR = 1e-10
 
@@ -42,6 +47,7 @@ class RenderOutput:
     alpha: Tensor  # [H, W, 1]
     depth: Tensor  # [H, W, 1]
     info: dict[str, Any] = field(default_factory=dict)
+    features: Tensor | None = None  # [H, W, C]: the extra channels' sum of w * f (no background), if asked for
 
 
 def render_output(
@@ -55,10 +61,12 @@ def render_output(
     backend: str,
     tile_size: int,
     n_pairs: int,
+    features: Tensor | None = None,
 ) -> RenderOutput:
     """A backend's result: rgb on the background [H,W,3], alpha [H,W,1], the alpha-weighted depth
     sum [H,W,1] (made the expected depth here), the projection it composited and its tiling
-    (tile_size in pixels, n_pairs Gaussian-tile intersections)."""
+    (tile_size in pixels, n_pairs Gaussian-tile intersections), and the extra channels' sums [H,W,C]
+    where it composited some."""
     radii_xy = projection.radii_xy
     info = {
         "means2d": projection.means2d,
@@ -74,4 +82,5 @@ def render_output(
         "tile_size": tile_size,
         "n_pairs": n_pairs,
     }
-    return RenderOutput(rgb=rgb, alpha=alpha, depth=depth_sum / alpha.clamp_min(DEPTH_ALPHA_FLOOR), info=info)
+    depth = depth_sum / alpha.clamp_min(DEPTH_ALPHA_FLOOR)
+    return RenderOutput(rgb=rgb, alpha=alpha, depth=depth, info=info, features=features)

@@ -16,7 +16,7 @@ from liquidgs import native
 from liquidgs.cameras import view_centre
 from liquidgs.native import INT, INT64, POINTER, pointer
 from liquidgs.render.composite import MAX_ALPHA, MIN_TRANSMITTANCE
-from liquidgs.render.contract import RasterOptions, RenderOutput
+from liquidgs.render.contract import MAX_EXTRA_FEATURES, RasterOptions, RenderOutput
 from liquidgs.render.projection import (
     ALPHA_THRESHOLD,
     FRUSTUM_MARGIN,
@@ -36,19 +36,20 @@ DEFINES = (
     ("LIQUIDGS_MIN_TRANSMITTANCE", MIN_TRANSMITTANCE),
     ("LIQUIDGS_MAX_EXTENT_SIGMAS", MAX_EXTENT_SIGMAS),
     ("LIQUIDGS_FRUSTUM_MARGIN", FRUSTUM_MARGIN),
+    ("LIQUIDGS_MAX_EXTRA_FEATURES", MAX_EXTRA_FEATURES),
 )
-# Gradient row per Gaussian: means2d (2), conics (3), opacity (1), RGB + depth (4), |means2d| (2).
-ROW = 12
+# Gradient row per Gaussian: means2d (2), conics (3), opacity (1), |means2d| (2), then the features.
+ROW_HEAD = 8
 GRADIENT_SLICES = 8
 """The backward's partial gradient sums, one per band of tiles: a fixed count, so the gradients
 do not depend on the thread count; up to this many threads share the work. Measured against one
 sum per thread (bench raster, 1 thread, 2-core VM under load): +0.6 ms at 64x64/5,000 Gaussians,
 +5 ms at 200x200/20,000 (+6%), both within that machine's noise; +7 MB peak at 20,000."""
-FEATURES = 4
+MIN_FEATURES = 4  # RGB and depth, before any extra channels
 MAX_TILE_SIZE = 32
 
-_FORWARD_ARGS = [POINTER] * 8 + [INT64, INT, INT, INT, INT] + [POINTER] * 3 + [INT]
-_BACKWARD_ARGS = [POINTER] * 8 + [INT64, INT, INT, INT, INT] + [POINTER] * 4 + [INT64, INT, POINTER, INT]
+_FORWARD_ARGS = [POINTER] * 8 + [INT64, INT, INT, INT, INT, INT] + [POINTER] * 3 + [INT]
+_BACKWARD_ARGS = [POINTER] * 8 + [INT64, INT, INT, INT, INT, INT] + [POINTER] * 4 + [INT64, INT, POINTER, INT]
 
 
 def _declare(library: ctypes.CDLL) -> None:
@@ -189,7 +190,7 @@ class _CompositeCPU(torch.autograd.Function):
     def forward(ctx, means2d, conics, opacities, features, bins: TileBins, width: int, height: int, absgrad):
         tile_order = torch.argsort(bins.tile_counts, descending=True)
         tile_order = tile_order[: int((bins.tile_counts > 0).sum())]  # busiest first balances the threads
-        out_features = features.new_zeros(height, width, FEATURES)
+        out_features = features.new_zeros(height, width, features.shape[1])
         out_transmittance = features.new_ones(height, width)
         out_last = torch.full((height, width), -1, dtype=torch.int32)
         inputs = [t.detach().contiguous() for t in (means2d, conics, opacities, features)]
@@ -210,7 +211,7 @@ class _CompositeCPU(torch.autograd.Function):
         dtype = features.dtype
         grad_features_image = grad_features_image.to(dtype).contiguous()
         grad_alpha_image = grad_alpha_image.to(dtype).reshape(height, width).contiguous()
-        slice_grads = features.new_zeros(GRADIENT_SLICES, means2d.shape[0], ROW)
+        slice_grads = features.new_zeros(GRADIENT_SLICES, means2d.shape[0], ROW_HEAD + features.shape[1])
         inputs = [t.detach().contiguous() for t in (means2d, conics, opacities, features)]
         common = _common_arguments(*inputs, bins, tile_order, width, height)
         getattr(_library(), f"liquidgs_composite_backward_{native.suffix(features)}")(
@@ -220,12 +221,12 @@ class _CompositeCPU(torch.autograd.Function):
         per_gaussian = slice_grads[0]  # the kernel leaves the slices' total there
         if ctx.absgrad:
             # gsplat's convention: the summed per-pixel |dL/dmeans2d| lands on means2d.absgrad.
-            means2d.absgrad = per_gaussian[:, 10:12].clone()
+            means2d.absgrad = per_gaussian[:, 6:8].clone()
         return (
             per_gaussian[:, 0:2].clone(),
             per_gaussian[:, 2:5].clone(),
             per_gaussian[:, 5].clone(),
-            per_gaussian[:, 6:10].clone(),
+            per_gaussian[:, ROW_HEAD:].clone(),
             None, None, None, None,
         )  # fmt: skip
 
@@ -234,7 +235,7 @@ def _common_arguments(means2d, conics, opacities, features, bins: TileBins, tile
     return [
         pointer(means2d), pointer(conics), pointer(opacities), pointer(features),
         pointer(bins.gaussian_ids), pointer(bins.tile_starts), pointer(bins.tile_counts), pointer(tile_order),
-        int(tile_order.numel()), bins.tile_size, bins.tiles_x, width, height,
+        int(tile_order.numel()), bins.tile_size, bins.tiles_x, width, height, features.shape[1],
     ]  # fmt: skip
 
 
@@ -269,8 +270,11 @@ def composite_tiles_cpu(
     absgrad: bool = False,
 ) -> tuple[Tensor, Tensor]:
     """composite.composite_tiles on the compiled kernel: same inputs, outputs and gradients."""
-    if features.shape[1] != FEATURES:
-        raise ValueError(f"the CPU kernel composites {FEATURES} features (RGB + depth), got {features.shape[1]}")
+    most = MIN_FEATURES + MAX_EXTRA_FEATURES
+    if not MIN_FEATURES <= features.shape[1] <= most:
+        raise ValueError(
+            f"the CPU kernel composites {MIN_FEATURES} to {most} features (RGB, depth, extras), got {features.shape[1]}"
+        )
     if not (4 <= bins.tile_size <= MAX_TILE_SIZE and bins.tile_size % 4 == 0):
         # A tile's pixels fill whole 8-float vectors.
         raise ValueError(f"the CPU kernel takes tile sizes 4, 8, ..., {MAX_TILE_SIZE}, got {bins.tile_size}")
@@ -291,6 +295,8 @@ CPU_STAGES = TiledStages(project_gaussians_cpu, _view_colors, bin_gaussians_cpu,
 
 
 def render(
-    means, quats, scales, opacities, colors, viewmat, K, width: int, height: int, options: RasterOptions
+    means, quats, scales, opacities, colors, features, viewmat, K, width: int, height: int, options: RasterOptions
 ) -> RenderOutput:
-    return render_tiled(CPU_STAGES, "cpu", means, quats, scales, opacities, colors, viewmat, K, width, height, options)
+    return render_tiled(
+        CPU_STAGES, "cpu", means, quats, scales, opacities, colors, features, viewmat, K, width, height, options
+    )

@@ -13,7 +13,7 @@
 // types only, no torch headers, so it compiles in about a second with g++ or clang++.
 
 #if !defined(LIQUIDGS_MAX_ALPHA) || !defined(LIQUIDGS_ALPHA_THRESHOLD) || !defined(LIQUIDGS_MIN_TRANSMITTANCE) || \
-    !defined(LIQUIDGS_MAX_EXTENT_SIGMAS) || !defined(LIQUIDGS_FRUSTUM_MARGIN)
+    !defined(LIQUIDGS_MAX_EXTENT_SIGMAS) || !defined(LIQUIDGS_FRUSTUM_MARGIN) || !defined(LIQUIDGS_MAX_EXTRA_FEATURES)
 #error "built by liquidgs/render/cpu_backend.py, which passes the constants of the torch backend (DEFINES)"
 #endif
 
@@ -27,10 +27,12 @@
 namespace {
 
 constexpr int kMaxTileSize = 32;
-// RGB and depth: the features rasterize() composites.
-constexpr int kFeatures = 4;
-// Gradient row per Gaussian: means2d (2), conics (3), opacity (1), features (4), |means2d| (2).
-constexpr int kRow = 12;
+// RGB and depth, then the caller's extra feature channels (up to LIQUIDGS_MAX_EXTRA_FEATURES): the
+// kernels are compiled for each count, so the loops over features unroll.
+constexpr int kMinFeatures = 4;
+constexpr int kMaxFeatures = kMinFeatures + static_cast<int>(LIQUIDGS_MAX_EXTRA_FEATURES);
+// Gradient row per Gaussian: means2d (2), conics (3), opacity (1), |means2d| (2), then the features.
+constexpr int kRowHead = 8;
 
 // 32-byte vectors of pixels and the integer masks their comparisons give.
 struct F32 {
@@ -113,7 +115,7 @@ void tile_pixels(const TileGeometry& g, int64_t tile, typename P::V* px, typenam
     }
 }
 
-template <typename P> struct Gaussian2D {
+template <typename P, int kFeatures> struct Gaussian2D {
     using S = typename P::S;
     S mx, my, ca, cb, cc, opacity, feature[kFeatures];
     Gaussian2D(const S* means2d, const S* conics, const S* opacities, const S* features, int64_t id)
@@ -123,7 +125,7 @@ template <typename P> struct Gaussian2D {
     }
 };
 
-template <typename P>
+template <typename P, int kFeatures>
 void forward(const typename P::S* means2d, const typename P::S* conics, const typename P::S* opacities,
              const typename P::S* features, const int64_t* gaussian_ids, const int64_t* tile_starts,
              const int64_t* tile_counts, const int64_t* tile_order, int64_t n_tiles, TileGeometry g,
@@ -147,7 +149,7 @@ void forward(const typename P::S* means2d, const typename P::S* conics, const ty
         }
         const int64_t start = tile_starts[tile], count = tile_counts[tile];
         for (int64_t k = 0; k < count; ++k) {
-            const Gaussian2D<P> gs(means2d, conics, opacities, features, gaussian_ids[start + k]);
+            const Gaussian2D<P, kFeatures> gs(means2d, conics, opacities, features, gaussian_ids[start + k]);
             M any_active = M{};
             for (int j = 0; j < vectors; ++j) {
                 const V dx = gs.mx - px[j], dy = gs.my - py[j];
@@ -180,7 +182,7 @@ void forward(const typename P::S* means2d, const typename P::S* conics, const ty
     }
 }
 
-template <typename P>
+template <typename P, int kFeatures>
 void backward(const typename P::S* means2d, const typename P::S* conics, const typename P::S* opacities,
               const typename P::S* features, const int64_t* gaussian_ids, const int64_t* tile_starts,
               const int64_t* tile_counts, const int64_t* tile_order, int64_t n_tiles, TileGeometry g,
@@ -197,6 +199,7 @@ void backward(const typename P::S* means2d, const typename P::S* conics, const t
     // with its own sums and its tiles taken in order; the slices are then added in order. The
     // threads only share out the slices, so the gradients are the same bits for any thread
     // count; a band touches mostly its own Gaussians, so its sums stay in cache.
+    constexpr int kRow = kRowHead + kFeatures;
     const int64_t row_values = n_gaussians * kRow;
     const int64_t all_tiles = static_cast<int64_t>(g.tiles_x) * ((g.height + g.tile_size - 1) / g.tile_size);
 #pragma omp parallel for schedule(dynamic, 1)
@@ -224,7 +227,7 @@ void backward(const typename P::S* means2d, const typename P::S* conics, const t
         const int64_t start = tile_starts[tile];
         for (int64_t k = deepest; k >= 0; --k) {
             const int64_t id = gaussian_ids[start + k];
-            const Gaussian2D<P> gs(means2d, conics, opacities, features, id);
+            const Gaussian2D<P, kFeatures> gs(means2d, conics, opacities, features, id);
             V gx{}, gy{}, abs_gx{}, abs_gy{}, g_ca{}, g_cb{}, g_cc{}, g_opacity{}, g_feature[kFeatures] = {};
             for (int j = 0; j < vectors; ++j) {
                 const V dx = gs.mx - px[j], dy = gs.my - py[j];
@@ -264,9 +267,9 @@ void backward(const typename P::S* means2d, const typename P::S* conics, const t
             out[3] += lane_sum<P>(g_cb);
             out[4] += lane_sum<P>(g_cc);
             out[5] += lane_sum<P>(g_opacity);
-            for (int f = 0; f < kFeatures; ++f) out[6 + f] += lane_sum<P>(g_feature[f]);
-            out[10] += lane_sum<P>(abs_gx);
-            out[11] += lane_sum<P>(abs_gy);
+            out[6] += lane_sum<P>(abs_gx);
+            out[7] += lane_sum<P>(abs_gy);
+            for (int f = 0; f < kFeatures; ++f) out[kRowHead + f] += lane_sum<P>(g_feature[f]);
         }
     }
     // The total into the first slice.
@@ -309,9 +312,26 @@ void set_threads(int threads) {
 #endif
 }
 
+// forward / backward compiled for `features` channels, kMinFeatures..kMaxFeatures (cpu_backend.py
+// checks the count; any other does nothing).
+template <typename P, int kFeatures = kMinFeatures, typename... Args> void forward_for(int features, Args... args) {
+    if constexpr (kFeatures <= kMaxFeatures) {
+        if (features == kFeatures) return forward<P, kFeatures>(args...);
+        forward_for<P, kFeatures + 1>(features, args...);
+    }
+}
+template <typename P, int kFeatures = kMinFeatures, typename... Args> void backward_for(int features, Args... args) {
+    if constexpr (kFeatures <= kMaxFeatures) {
+        if (features == kFeatures) return backward<P, kFeatures>(args...);
+        backward_for<P, kFeatures + 1>(features, args...);
+    }
+}
+
 }  // namespace
 
 extern "C" {
+
+int liquidgs_max_features() { return kMaxFeatures; }
 
 int liquidgs_max_tile_size() { return kMaxTileSize; }
 
@@ -325,22 +345,22 @@ void liquidgs_bin_tiles(const int64_t* depth_order, const int64_t* tile_box, int
         const P::S* means2d, const P::S* conics, const P::S* opacities, const P::S* features,                     \
         const int64_t* gaussian_ids, const int64_t* tile_starts, const int64_t* tile_counts,                      \
         const int64_t* tile_order, int64_t n_tiles, int tile_size, int tiles_x, int width, int height,           \
-        P::S* out_features, P::S* out_transmittance, int32_t* out_last, int threads) {                           \
+        int features_count, P::S* out_features, P::S* out_transmittance, int32_t* out_last, int threads) {       \
         set_threads(threads);                                                                                       \
-        forward<P>(means2d, conics, opacities, features, gaussian_ids, tile_starts, tile_counts, tile_order,       \
-                   n_tiles, TileGeometry{tile_size, tiles_x, width, height}, out_features, out_transmittance,      \
-                   out_last);                                                                                       \
+        forward_for<P>(features_count, means2d, conics, opacities, features, gaussian_ids, tile_starts,            \
+                       tile_counts, tile_order, n_tiles, TileGeometry{tile_size, tiles_x, width, height},           \
+                       out_features, out_transmittance, out_last);                                                 \
     }                                                                                                               \
     void liquidgs_composite_backward_##suffix(                                                                      \
         const P::S* means2d, const P::S* conics, const P::S* opacities, const P::S* features,                     \
         const int64_t* gaussian_ids, const int64_t* tile_starts, const int64_t* tile_counts,                      \
         const int64_t* tile_order, int64_t n_tiles, int tile_size, int tiles_x, int width, int height,           \
-        const P::S* transmittance, const int32_t* last_index, const P::S* grad_features, const P::S* grad_alpha, \
-        int64_t n_gaussians, int slices, P::S* slice_grads, int threads) {                                        \
+        int features_count, const P::S* transmittance, const int32_t* last_index, const P::S* grad_features,     \
+        const P::S* grad_alpha, int64_t n_gaussians, int slices, P::S* slice_grads, int threads) {                \
         set_threads(threads);                                                                                       \
-        backward<P>(means2d, conics, opacities, features, gaussian_ids, tile_starts, tile_counts, tile_order,      \
-                    n_tiles, TileGeometry{tile_size, tiles_x, width, height}, transmittance, last_index,           \
-                    grad_features, grad_alpha, n_gaussians, slices, slice_grads);                                  \
+        backward_for<P>(features_count, means2d, conics, opacities, features, gaussian_ids, tile_starts,           \
+                        tile_counts, tile_order, n_tiles, TileGeometry{tile_size, tiles_x, width, height},          \
+                        transmittance, last_index, grad_features, grad_alpha, n_gaussians, slices, slice_grads);    \
     }
 
 LIQUIDGS_EXPORT(F32, f32)

@@ -68,9 +68,11 @@ def unavailable_reason(means: Tensor) -> str | None:
 
 
 def render(
-    means, quats, scales, opacities, colors, viewmat, K, width: int, height: int, options: RasterOptions
+    means, quats, scales, opacities, colors, features, viewmat, K, width: int, height: int, options: RasterOptions
 ) -> RenderOutput:
-    """Render with gsplat's kernels (see the contract in render/contract.py)."""
+    """Render with gsplat's kernels (see the contract in render/contract.py). The extra features are
+    channels after RGB and depth: gsplat composites any number of them (padded to a count its
+    kernels are built for, in its wrapper), with a zero background."""
     from gsplat import (
         fully_fused_projection,
         isect_offset_encode,
@@ -94,8 +96,9 @@ def render(
     else:
         sh_rgb = spherical_harmonics(options.sh_degree, means - view_centre(viewmat), colors, masks=visible)
         rgb_colors = torch.clamp_min(sh_rgb + 0.5, 0.0)
-    features = torch.cat([rgb_colors, depths[:, None]], dim=1)
-    backgrounds = torch.cat([options.background, options.background.new_zeros(1)])[None]
+    channels = [rgb_colors, depths[:, None]] + ([] if features is None else [features])
+    n_unlit = 1 if features is None else 1 + features.shape[1]  # depth and the extras: no background
+    backgrounds = torch.cat([options.background, options.background.new_zeros(n_unlit)])[None]
 
     tiles_x = math.ceil(width / GSPLAT_TILE_SIZE)
     tiles_y = math.ceil(height / GSPLAT_TILE_SIZE)
@@ -106,7 +109,7 @@ def render(
     )
     isect_offsets = isect_offset_encode(isect_ids, 1, tiles_x, tiles_y).reshape(1, tiles_y, tiles_x)
     rendered, alphas = rasterize_to_pixels(
-        means2d_for_kernel, conics_batched, features[None], opacities[None], width, height,
+        means2d_for_kernel, conics_batched, torch.cat(channels, dim=1)[None], opacities[None], width, height,
         GSPLAT_TILE_SIZE, isect_offsets, flatten_ids, backgrounds=backgrounds, absgrad=options.absgrad,
     )  # fmt: skip
     if options.absgrad and means2d.requires_grad:
@@ -118,6 +121,7 @@ def render(
     alpha = alphas[0]
     projection = Projection(means2d=means2d, conics=conics, depths=depths, radii_xy=radii_xy, visible=visible)
     return render_output(
-        rendered[0, ..., :3], alpha, rendered[0, ..., 3:], projection,
+        rendered[0, ..., :3], alpha, rendered[0, ..., 3:4], projection,
         width=width, height=height, backend="gsplat", tile_size=GSPLAT_TILE_SIZE, n_pairs=flatten_ids.numel(),
+        features=None if features is None else rendered[0, ..., 4:],
     )  # fmt: skip

@@ -12,7 +12,7 @@ from torch import Tensor
 
 from liquidgs.render import cpu_backend, gsplat_backend, torch_backend
 from liquidgs.render.composite import DEFAULT_CHUNK_ELEMENTS
-from liquidgs.render.contract import RasterOptions, RenderOutput
+from liquidgs.render.contract import MAX_EXTRA_FEATURES, RasterOptions, RenderOutput
 from liquidgs.sh import MAX_SH_DEGREE, num_sh_bases
 
 logger = logging.getLogger(__name__)
@@ -50,7 +50,7 @@ def _all_finite(tensor: Tensor) -> bool:
 
 
 def _validate(
-    means, quats, scales, opacities, colors, viewmat, K, width, height, sh_degree, background, backend
+    means, quats, scales, opacities, colors, viewmat, K, width, height, sh_degree, background, backend, features
 ) -> None:
     if backend not in BACKENDS:
         raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
@@ -66,6 +66,10 @@ def _validate(
     _check_tensor("K", K, (3, 3), "[3,3]")
     if background is not None:
         _check_tensor("background", background, (3,), "[3]")
+    if features is not None:
+        _check_tensor("features", features, (n, None), f"[N,C] with N={n}, 1 <= C <= {MAX_EXTRA_FEATURES}")
+        if not 1 <= features.shape[1] <= MAX_EXTRA_FEATURES:
+            raise ValueError(f"features must have 1 to {MAX_EXTRA_FEATURES} channels, got shape {list(features.shape)}")
     if sh_degree is None:
         _check_tensor("colors", colors, (n, 3), f"[N,3] with N={n} (RGB, as sh_degree is None)")
         return
@@ -114,6 +118,7 @@ def rasterize(
     width: int,
     height: int,
     *,
+    features: Tensor | None = None,
     sh_degree: int | None = None,
     background: Tensor | None = None,
     backend: str = "auto",
@@ -129,6 +134,9 @@ def rasterize(
     Args:
         means [N,3], quats [N,4] (wxyz, any norm), scales [N,3] (std-devs), opacities [N] in [0,1].
         colors: RGB [N,3] when sh_degree is None, else SH coefficients [N,K,3], K >= (sh_degree+1)^2.
+        features: None, or extra per-Gaussian channels [N,C] (1 <= C <= MAX_EXTRA_FEATURES) composited
+        in the same pass with colour's weights, into RenderOutput.features [H,W,C] (sum of w * f, no
+        background, not divided by alpha); gradients flow to them and, through the weights, to the Gaussians.
         viewmat [4,4]: world-to-camera, OpenCV axes (x right, y down, z forward). K [3,3]: intrinsics.
         background [3] or None (black). backend: "auto" (gsplat on CUDA for float32 when its kernels
         run; on the CPU the compiled kernel where it builds, else torch), "torch" (the portable reference),
@@ -144,7 +152,9 @@ def rasterize(
     depths and conics are meaningless (with the gsplat backend on a GPU, uninitialised memory, possibly NaN):
     read them only where visible. Their .grad / .absgrad rows are zero.
     """
-    _validate(means, quats, scales, opacities, colors, viewmat, K, width, height, sh_degree, background, backend)
+    _validate(
+        means, quats, scales, opacities, colors, viewmat, K, width, height, sh_degree, background, backend, features
+    )
     if tile_size is not None and (isinstance(tile_size, bool) or not isinstance(tile_size, int) or tile_size < 1):
         raise ValueError(f"tile_size must be an integer >= 1, got {tile_size!r}")
     chosen = choose_backend(backend, means)
@@ -160,4 +170,8 @@ def rasterize(
     )
     viewmat = viewmat.to(dtype=means.dtype, device=means.device)
     K = K.to(dtype=means.dtype, device=means.device)
-    return _BACKEND_MODULES[chosen].render(means, quats, scales, opacities, colors, viewmat, K, width, height, options)
+    if features is not None:
+        features = features.to(dtype=means.dtype, device=means.device)
+    return _BACKEND_MODULES[chosen].render(
+        means, quats, scales, opacities, colors, features, viewmat, K, width, height, options
+    )

@@ -45,10 +45,11 @@ TORCH_STAGES = TiledStages(project_gaussians, view_colors, bin_gaussians, compos
 
 
 def render_tiled(
-    stages: TiledStages, backend: str, means, quats, scales, opacities, colors, viewmat, K, width: int, height: int,
-    options: RasterOptions,
+    stages: TiledStages, backend: str, means, quats, scales, opacities, colors, features, viewmat, K, width: int,
+    height: int, options: RasterOptions,
 ) -> RenderOutput:  # fmt: skip
-    """The tiled pipeline with `stages`; info["backend"] is `backend`."""
+    """The tiled pipeline with `stages`; info["backend"] is `backend`. The extra features, if any,
+    are composited as channels after RGB and depth."""
     projection = stages.project(
         means, quats, scales, opacities, viewmat, K, width, height, options.near_plane, options.far_plane, options.eps2d
     )
@@ -56,18 +57,23 @@ def render_tiled(
     if means2d.requires_grad:
         means2d.retain_grad()
     rgb_colors = stages.view_colors(colors, options.sh_degree, means, viewmat)
-    features = torch.cat([rgb_colors, projection.depths[:, None]], dim=1)
+    channels = [rgb_colors, projection.depths[:, None]] + ([] if features is None else [features])
     bins = stages.bin(means2d, projection.radii_xy, projection.depths, width, height, options.tile_size)
-    features_image, alpha = stages.composite(
-        means2d, projection.conics, opacities, features, bins, width, height, options.absgrad, options.chunk_elements
-    )
-    rgb = features_image[..., :3] + (1.0 - alpha) * options.background
+    image, alpha = stages.composite(
+        means2d, projection.conics, opacities, torch.cat(channels, dim=1), bins, width, height, options.absgrad,
+        options.chunk_elements,
+    )  # fmt: skip
+    rgb = image[..., :3] + (1.0 - alpha) * options.background
     return render_output(
-        rgb, alpha, features_image[..., 3:], projection,
+        rgb, alpha, image[..., 3:4], projection,
         width=width, height=height, backend=backend, tile_size=options.tile_size, n_pairs=bins.n_pairs,
+        features=None if features is None else image[..., 4:],
     )  # fmt: skip
 
 
-def render(means, quats, scales, opacities, colors, viewmat, K, width: int, height: int, options: RasterOptions):
-    return render_tiled(TORCH_STAGES, "torch", means, quats, scales, opacities, colors, viewmat, K, width, height,
-                        options)  # fmt: skip
+def render(
+    means, quats, scales, opacities, colors, features, viewmat, K, width: int, height: int, options: RasterOptions
+) -> RenderOutput:
+    return render_tiled(
+        TORCH_STAGES, "torch", means, quats, scales, opacities, colors, features, viewmat, K, width, height, options
+    )

@@ -4,11 +4,13 @@ video (data.flow).
 For a train frame at time t and its neighbouring train frame at time t', each Gaussian's motion on
 screen is where the neighbour's camera sees it at t' minus where this frame's camera sees it at t
 (each Gaussian deformed by the field at its own time, each camera with its refinement). Those 2D
-motions are composited per pixel with the same weights as colour (the rasteriser renders them as
-the colour of a second pass, on every backend), divided by the pixel's alpha, and compared with the
-measured flow (L1, in pixels) where the flow is consistent both ways and the render is opaque
-(alpha at least MIN_ALPHA). Off unless `flow.weight` is set (> 0), and then it needs the scene's
-flow at the training scale (`liquidgs data flow SCENE --downscale K`).
+motions are composited per pixel with the same weights as colour - as extra feature channels of the
+colour pass itself (rasterize's `features`, on every backend), so they cost no raster pass of their
+own - divided by the pixel's alpha, and compared with the measured flow (L1, in pixels) where the
+flow is consistent both ways and the render is opaque (alpha at least MIN_ALPHA). Its gradient
+reaches the Gaussians through that pass, so densification's screen-space gradients carry it too.
+Off unless `flow.weight` is set (> 0), and then it needs the scene's flow at the training scale
+(`liquidgs data flow SCENE --downscale K`).
 """
 
 from __future__ import annotations
@@ -21,8 +23,8 @@ import torch
 from liquidgs.cameras import Camera
 from liquidgs.data.flow import FlowPair
 from liquidgs.errors import check_number
-from liquidgs.render import rasterize
-from liquidgs.train.model import Deformed
+from liquidgs.render import RenderOutput
+from liquidgs.train.model import Deformed, render_frame
 
 MIN_ALPHA = 0.5
 """Pixels the render covers less than this are left out: their composited motion is mostly empty space."""
@@ -47,14 +49,20 @@ class _Target:
     valid: torch.Tensor  # [H, W] bool
 
 
+@dataclass
+class DrawnFlow:
+    """One step's flow target and each Gaussian's screen motion towards it: the motion goes to the
+    colour pass as its extra features, the target to `FlowLoss.loss` with that pass's output."""
+
+    motion: torch.Tensor  # [N, 2] pixels
+    target: _Target
+
+
 class FlowLoss:
     """Each train frame's measured flow to its neighbours (forward to the next, backward to the previous)."""
 
-    def __init__(
-        self, weight: float, pairs: list[FlowPair], train_names: list[str], device: torch.device, backend: str
-    ):
+    def __init__(self, weight: float, pairs: list[FlowPair], train_names: list[str], device: torch.device):
         self.weight = weight
-        self.backend = backend
         index = {name: i for i, name in enumerate(train_names)}
         self.targets: dict[int, list[_Target]] = {}
         for pair in pairs:
@@ -73,29 +81,42 @@ class FlowLoss:
             return None
         return targets[int(rng.integers(0, len(targets)))]
 
-    def loss(self, now: Deformed, camera: Camera, later: Deformed, later_camera: Camera, target: _Target):
-        """weight x the mean L1 between the composited screen motion of the Gaussians (`now` seen by
-        `camera`, `later` by `later_camera`) and the measured flow, over the pixels where both count."""
-        rendered, alpha = rendered_flow(now, camera, later, later_camera, self.backend)
-        use = target.valid & (alpha.detach() >= MIN_ALPHA)
+    def draw(self, now: Deformed, camera: Camera, later: Deformed, later_camera: Camera, target: _Target):
+        """The flow term of a step: the Gaussians' screen motion (`now` seen by `camera`, `later` by
+        `later_camera`), to be rendered with this frame's colour, and the measured flow it is held to."""
+        return DrawnFlow(screen_motion(now, camera, later, later_camera), target)
+
+    def loss(self, out: RenderOutput, drawn: DrawnFlow):
+        """weight x the mean L1 between the composited motion in `out` (the colour pass rendered with
+        `drawn.motion` as its features) and the measured flow, over the pixels where both count;
+        None where there are none."""
+        rendered, alpha = composited_flow(out)
+        use = drawn.target.valid & (alpha.detach() >= MIN_ALPHA)
         if not bool(use.any()):
             return None
-        return self.weight * (rendered[use] - target.flow[use]).abs().mean()
+        return self.weight * (rendered[use] - drawn.target.flow[use]).abs().mean()
+
+
+def screen_motion(now: Deformed, camera: Camera, later: Deformed, later_camera: Camera) -> torch.Tensor:
+    """Each Gaussian's motion on screen [N, 2], in pixels: its projection by `later_camera` at `later`
+    minus its projection by `camera` at `now`."""
+    return project(later.means, later_camera) - project(now.means, camera)
+
+
+def composited_flow(out: RenderOutput):
+    """The motion a render with `screen_motion` as its features composited, divided by alpha:
+    ([H, W, 2] pixels, alpha [H, W])."""
+    alpha = out.alpha[..., 0]
+    return out.features / alpha.clamp_min(MIN_ALPHA)[..., None], alpha
 
 
 def rendered_flow(now: Deformed, camera: Camera, later: Deformed, later_camera: Camera, backend: str = "auto"):
-    """The Gaussians' screen motion from `camera` at `now` to `later_camera` at `later`, composited per
-    pixel with colour's weights and divided by alpha: ([H, W, 2] pixels, alpha [H, W])."""
-    motion = project(later.means, later_camera) - project(now.means, camera)
-    features = torch.cat([motion, motion.new_zeros(motion.shape[0], 1)], dim=1)
-    device = now.means.device
-    out = rasterize(
-        now.means, now.quats, now.scales, now.opacities, features,
-        camera.viewmat.to(device), camera.K.to(device), camera.width, camera.height,
-        sh_degree=None, background=features.new_zeros(3), backend=backend,
-    )  # fmt: skip
-    alpha = out.alpha[..., 0]
-    return out.rgb[..., :2] / alpha.clamp_min(MIN_ALPHA)[..., None], alpha
+    """The colour pass with the screen motion as its features, as the trainer renders it (SH degree 0:
+    the flow, not the picture, is wanted): (flow [H, W, 2], alpha [H, W])."""
+    motion = screen_motion(now, camera, later, later_camera)
+    background = now.means.new_zeros(3)
+    return composited_flow(render_frame(now, camera, sh_degree=0, background=background, backend=backend,
+                                        features=motion))  # fmt: skip
 
 
 def project(means: torch.Tensor, camera: Camera) -> torch.Tensor:

@@ -82,7 +82,9 @@ def render_frame(
     background: torch.Tensor,
     backend: str = "auto",
     absgrad: bool = False,
+    features: torch.Tensor | None = None,
 ) -> RenderOutput:
+    """The Gaussians seen by `camera`; `features` [N, C], if given, composited in the same pass."""
     device = gaussians.means.device
     return rasterize(
         gaussians.means,
@@ -98,4 +100,5 @@ def render_frame(
         background=background.to(device),
         backend=backend,
         absgrad=absgrad,
+        features=features,
     )

@@ -225,7 +225,7 @@ class Trainer:
         # At the scale of the images trained on: flow.json's hashes tie it to those very files.
         pairs = read_flow_pairs(self.cfg.data.path, image_scale(self.cfg.data.path, self.dataset.train))
         names = [frame.name for frame in self.dataset.train]
-        return FlowLoss(self.cfg.flow.weight, pairs, names, self.device, self.cfg.backend)
+        return FlowLoss(self.cfg.flow.weight, pairs, names, self.device)
 
     def _initial_gaussians(self) -> torch.nn.ParameterDict:
         cfg, ds = self.cfg, self.dataset
@@ -342,8 +342,11 @@ class Trainer:
         deformed = gaussians
         if self.cameras is not None:
             gaussians = self.cameras.correct(gaussians, index, frame.camera, step)
+        flow = self._flow_draw(gaussians, index, frame, use_field, step, moving) if self.flow_loss is not None else None
         clock.mark("field_forward")
-        out = self._render(gaussians, frame, absgrad=cfg.densify.gradient == "absolute")
+        out = self._render(
+            gaussians, frame, absgrad=cfg.densify.gradient == "absolute", features=None if flow is None else flow.motion
+        )
         clock.mark("raster_forward")
         rgb = out.rgb if self.exposure is None else self.exposure.correct(out.rgb, index)
         l1 = (rgb - gt).abs().mean()
@@ -353,8 +356,8 @@ class Trainer:
             loss = loss + regulariser
         if self.motion is not None and use_field:
             loss = loss + self._motion_term(step, deformed, moving)
-        if self.flow_loss is not None:
-            loss = loss + self._flow_term(gaussians, index, frame, use_field, step, moving)
+        if flow is not None and (flow_term := self.flow_loss.loss(out, flow)) is not None:
+            loss = loss + flow_term
         if not torch.isfinite(loss):
             raise self._diverged(f"non-finite loss at iteration {step}")
         clock.mark("loss_forward")
@@ -435,17 +438,17 @@ class Trainer:
             self.field.train()
         return largest
 
-    def _flow_term(self, gaussians, index: int, frame, use_field: bool, step: int, moving: torch.Tensor | None):
-        """The optical-flow loss of this step's frame against one of its neighbours (0 where it has none)."""
+    def _flow_draw(self, gaussians, index: int, frame, use_field: bool, step: int, moving: torch.Tensor | None):
+        """The Gaussians' screen motion from this step's frame to one of its neighbours, rendered with
+        the frame's colour for the optical-flow loss (None where the frame has no flow)."""
         target = self.flow_loss.target(index, self.camera_rng)
         if target is None:
-            return 0.0
+            return None
         other = self.dataset.train[target.neighbour]
         later = deform(self.params, self.field if use_field else None, other.time, moving=moving)
         if self.cameras is not None:
             later = self.cameras.correct(later, target.neighbour, other.camera, step)
-        term = self.flow_loss.loss(gaussians, frame.camera, later, other.camera, target)
-        return 0.0 if term is None else term
+        return self.flow_loss.draw(gaussians, frame.camera, later, other.camera, target)
 
     def _scheduled_disturbance(self, step: int, sh_raised: bool, n_before: int, report: dict) -> str | None:
         """The recipe's own step that may drop the training PSNR by design, if this step was one."""
@@ -569,10 +572,11 @@ class Trainer:
         return self.finish()
 
     # ----------------------------------------------------------------- evaluation
-    def _render(self, gaussians, frame, absgrad: bool = False):
+    def _render(self, gaussians, frame, absgrad: bool = False, features=None):
         return render_frame(
             gaussians, frame.camera,
             sh_degree=self.state.sh_degree, background=self.background, backend=self.cfg.backend, absgrad=absgrad,
+            features=features,
         )  # fmt: skip
 
     def render_fn(self, frame):
