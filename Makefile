@@ -47,6 +47,7 @@ demo: $(BIN)/liquidgs
 test: $(BIN)/liquidgs
 	bash scripts/setup_browser.sh
 	bash scripts/setup_splatv_player.sh
+	bash scripts/setup_spz_reader.sh
 	$(BIN)/ruff check src tests examples
 	$(PYTEST) tests examples/field-plugin/tests
 
