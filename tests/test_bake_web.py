@@ -294,6 +294,8 @@ def test_link_out_of_range_is_clamped_or_refused_on_the_page(browser, served, sc
     _, frames, _, _ = scene
     page, problems, _ = opened_page(browser, f"{served}/index.html#{fragment.format(name=camera_name(scene, 3))}")
     state = page.evaluate("player.state()")
+    ARTIFACTS.mkdir(parents=True, exist_ok=True)
+    page.screenshot(path=ARTIFACTS / f"link_{fragment.split('&')[0]}.png")
     assert (state["camera"], state["time"]) == (camera, time)
     assert message in page.locator("#message").text_content()
     assert page.locator("#message").is_visible()
@@ -329,16 +331,20 @@ def truncated(name: str, keep: float):
     ],
     ids=["bin-missing", "json-missing", "bin-truncated", "json-truncated"],
 )
-def test_missing_or_truncated_scene_is_a_message_on_the_page(browser, web, tmp_path, change, message):
+def test_missing_or_truncated_scene_is_a_message_on_the_page(browser, web, tmp_path, change, message, request):
     page, _, _ = opened_page(browser, served_copy(web, tmp_path / "web", change), ready="error")
     text = page.locator("#message").text_content()
+    ARTIFACTS.mkdir(parents=True, exist_ok=True)
+    page.screenshot(path=ARTIFACTS / f"scene_{request.node.callspec.id}.png")
     assert message in text and page.locator("#message").is_visible(), text
     page.close()
 
 
 @pytest.mark.slow  # Chromium
 def test_folder_opened_from_disk_says_to_serve_it(browser, web):
-    page, _, _ = opened_page(browser, (web / "index.html").as_uri(), ready="error")
+    page, _, _ = opened_page(browser, (web / "index.html").as_uri(), ready="error", viewport=WINDOW)
+    ARTIFACTS.mkdir(parents=True, exist_ok=True)
+    page.screenshot(path=ARTIFACTS / "opened_from_disk.png")
     text = page.locator("#message").text_content()
     assert "python -m http.server" in text and "liquidgs export --format html" in text, text
     page.close()
