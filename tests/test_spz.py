@@ -1,6 +1,6 @@
 """`liquidgs export --format spz --time T`: the Gaussians at a time as SPZ (liquidgs.bake.spz), decoded
 by a reader not written here: @spz-loader/core 0.3.1 (npm, Apache-2.0; Niantic's SPZ library compiled
-to WebAssembly), pinned by tests/spz_reader/package-lock.json, installed by scripts/setup_spz_reader.sh
+to WebAssembly), pinned by tests/spz_reader/package-lock.json, installed by scripts/setup_npm_tests.sh
 and run in headless Chromium (its package runs in browsers only). Every field it decodes is held to
 ours within the format's quantisation."""
 
@@ -64,7 +64,7 @@ class QuietHandler(http.server.SimpleHTTPRequestHandler):
 @pytest.fixture(scope="module")
 def decoded(exported) -> dict[float, dict]:
     """What the outside reader read from each exported file, by time."""
-    require_installed(LOADER, f"no @spz-loader/core at {LOADER}: scripts/setup_spz_reader.sh installs it (needs npm)")
+    require_installed(LOADER, f"no @spz-loader/core at {LOADER}: scripts/setup_npm_tests.sh installs it (needs npm)")
     (exported / "index.html").symlink_to(SPZ_READER / "index.html")
     (exported / "node_modules").symlink_to(SPZ_READER / "node_modules")
     server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), functools.partial(QuietHandler, directory=str(exported)))
