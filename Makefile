@@ -46,7 +46,7 @@ demo: $(BIN)/liquidgs
 # examples/field-plugin's own tests too: the template plugin, loaded from its checkout (not installed).
 test: $(BIN)/liquidgs
 	bash scripts/setup_browser.sh
-	bash scripts/setup_splatv_player.sh
+	bash scripts/setup_npm_tests.sh
 	$(BIN)/ruff check src tests examples
 	$(PYTEST) tests examples/field-plugin/tests
 

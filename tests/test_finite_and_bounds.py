@@ -74,6 +74,8 @@ WRITERS = {
     "export plyseq": ["export", "--format", "plyseq", "--sequence", "3"],
     "export splatv": ["export", "--format", "splatv"],
     "export web": ["export", "--format", "web"],
+    "export html": ["export", "--format", "html"],
+    "export spz": ["export", "--format", "spz", "--time", "0.5"],
 }
 
 
@@ -294,12 +296,11 @@ def test_export_web_refuses_a_failed_run_as_bake_does(tiny_mlp_run, tmp_path, ca
     (run / RESULTS).unlink()
     (run / FAILURE).write_text(json.dumps({"error": "diverged"}))
     lines = {}
-    for command in (["bake"], ["export", "--format", "web"]):
-        lines[command[0]] = refused(capsys, [*command, "--run", str(run)], run)
-    for command, line in lines.items():
-        label = "export --format web" if command == "export" else "bake"
+    for command in (["bake"], ["export", "--format", "web"], ["export", "--format", "html"]):
+        lines[" ".join(command)] = refused(capsys, [*command, "--run", str(run)], run)
+    for command, line in lines.items():  # the command as typed is what the line names
         assert f"{run}: failed run (why: {run / FAILURE}): checkpoint at iteration" in line, line
-        assert line.endswith(f"; {label} needs a finished run"), line
+        assert line.endswith(f"; {command} needs a finished run"), line
 
 
 CLIP_FIELDS = {"url": "http://127.0.0.1:9/x.mp4", "size": 1, "sha256": "0" * 64, "licence": "l", "moving": ""}

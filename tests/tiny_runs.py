@@ -93,6 +93,27 @@ def snapshot(*folders: Path) -> dict[str, tuple[int, bytes] | None]:
     }
 
 
+def coloured_bake(run: Path, out: Path) -> Path:
+    """The tiny run baked with few keyframes, then made opaque and coloured at random (SH of every
+    degree): 40 iterations leave the Gaussians nearly transparent and grey, which gives a player or
+    a file format nothing to get wrong."""
+    import torch
+
+    few = ["--min-keyframes", "5", "--max-keyframes", "9"]  # players are compared with this bake, not the field
+    code, _, err = run_cli(["bake", "--run", str(run), "--out", str(out), *few])
+    assert code == 0, err
+    scene = out / "scene.pt"
+    payload = torch.load(scene, weights_only=True)
+    params = payload["params"]
+    generator = torch.Generator().manual_seed(0)
+    params["opacities"] += 4.0
+    params["sh0"] = torch.rand(params["sh0"].shape, generator=generator) * 3 - 1.5
+    params["shN"] = (torch.rand(params["shN"].shape, generator=generator) - 0.5) * 0.4
+    torch.save(payload, scene)
+    rehash_baked_scene(out)  # the folder's record of its scene.pt, as a bake of it would write
+    return out
+
+
 def rehash_baked_scene(baked: Path) -> None:
     """Record a hand-edited baked scene.pt in its baked.json, as a bake that wrote it would have."""
     manifest_path = baked / "baked.json"

@@ -13,7 +13,10 @@ comment, field.pt's "source", the splatv header, the web folder's scene.json.
 plays it); --format splatv writes only scene.splatv, splaTV's per-Gaussian cubic motion fitted
 to the run (see liquidgs.bake.formats), with the share of the motion it keeps printed;
 --format web writes OUT/web, a static page with its WebGL2 player and the baked scene (a run is
-baked on the way with the default budget) that plays offline from any static file server.
+baked on the way with the default budget) that plays offline from any static file server;
+--format html writes OUT/scene.html, the same page with the scene inside it, one file that opens
+from disk; --format spz writes time_T.spz per --time, the Gaussians at that time in Niantic's
+compressed SPZ (liquidgs.bake.spz), which most 3DGS viewers open.
 """
 
 from __future__ import annotations
@@ -39,7 +42,8 @@ from liquidgs.bake.formats import (
     write_plyseq,
     write_splatv,
 )
-from liquidgs.bake.web import write_web
+from liquidgs.bake.spz import write_spz
+from liquidgs.bake.web import write_web, write_web_page
 from liquidgs.errors import ConfigError, check_finite
 from liquidgs.gaussians import write_ply
 from liquidgs.settings import parse_flags
@@ -54,13 +58,14 @@ class ExportArgs:
     out: Path | None = None
     """Default: DIR/export."""
     time: list[float] = field(default_factory=list)
-    """Times in [0,1] to export a deformed PLY for."""
+    """Times in [0,1] to export a deformed PLY (or with --format spz, an SPZ file) for."""
     sequence: int = 0
     """Number of evenly spaced frames of a PLY sequence (0: none; at most 100,000); with --format
     plyseq, of the .zip."""
-    format: Literal["ply", "plyseq", "splatv", "web"] = "ply"
+    format: Literal["ply", "plyseq", "splatv", "web", "html", "spz"] = "ply"
     """ply: the PLYs above; plyseq: OUT/sequence.zip of --sequence PLYs; splatv: OUT/scene.splatv;
-    web: OUT/web, a static folder that plays the scene in a browser."""
+    web: OUT/web, a static folder that plays the scene in a browser; html: OUT/scene.html, that
+    page as one file that opens from disk; spz: OUT/time_T.spz per --time, static SPZ files."""
     device: str = "auto"
     """auto (CUDA where torch sees a GPU, else the CPU), cpu, cuda or cuda:N."""
 
@@ -69,8 +74,8 @@ MAX_SEQUENCE = 100_000
 """The most --sequence frames (one PLY each): 100x a 1,000-frame capture."""
 
 
-def time_file_name(time: float) -> str:
-    return f"time_{time + 0.0:.4f}.ply"  # + 0.0 turns -0.0 into 0.0
+def time_file_name(time: float, suffix: str = ".ply") -> str:
+    return f"time_{time + 0.0:.4f}{suffix}"  # + 0.0 turns -0.0 into 0.0
 
 
 def export_run(args: ExportArgs, console: Console | None = None) -> list[Path]:
@@ -79,21 +84,25 @@ def export_run(args: ExportArgs, console: Console | None = None) -> list[Path]:
     for t in args.time:
         if not (math.isfinite(t) and 0.0 <= t <= 1.0):
             raise ConfigError(f"--time {t} is outside [0, 1]")
-        name = time_file_name(t)
+        name = time_file_name(t, ".spz" if args.format == "spz" else ".ply")
         if name in names and names[name] != t:
             raise ConfigError(f"--time {names[name]} and {t} would both be written to {name}")
         names[name] = t
     if not 0 <= args.sequence <= MAX_SEQUENCE:
         raise ConfigError(f"--sequence must be between 0 and {MAX_SEQUENCE:,}, got {args.sequence:,}")
-    if args.format != "ply" and args.time:
-        raise ConfigError(f"--time writes single PLYs: it goes with --format ply, not {args.format}")
-    if args.format in ("splatv", "web") and args.sequence:  # their motion is continuous: no frames to count
+    if args.format not in ("ply", "spz") and args.time:
+        raise ConfigError(f"--time writes single PLYs or SPZs: it goes with --format ply or spz, not {args.format}")
+    if args.format == "spz" and not args.time:
+        raise ConfigError("--format spz needs --time T, the time in [0, 1] to export (one file per --time)")
+    if (
+        args.format in ("splatv", "web", "html", "spz") and args.sequence
+    ):  # their motion is continuous: no frames to count
         raise ConfigError(f"--sequence has no effect with --format {args.format}: it sets the frames of ply and plyseq")
     if args.format == "plyseq" and args.sequence < 2:
         raise ConfigError("--format plyseq needs --sequence N, the number of frames (at least 2)")
     run = load_run(args.run, args.device)
-    if args.format == "web":  # it bakes the run on the way, which bake does for finished runs only
-        check_finished(run, "export --format web")
+    if args.format in ("web", "html"):  # it bakes the run on the way, which bake does for finished runs only
+        check_finished(run, f"export --format {args.format}")
     if console is not None and not run.finished:
         console.print(f"[yellow]note:[/] {args.run}: {run.progress_label}")
     out = args.out or args.run / "export"
@@ -103,6 +112,11 @@ def export_run(args: ExportArgs, console: Console | None = None) -> list[Path]:
         return [export_splatv(run, out / "scene.splatv", console)]
     if args.format == "web":
         return [write_web(out / "web", run, run.scene())]
+    if args.format == "html":
+        return [write_web_page(out / "scene.html", run, run.scene())]
+    if args.format == "spz":
+        check_frames_finite(run, list(names.values()))
+        return [write_spz(out / name, frame_params(run, t), run.sh_degree) for name, t in names.items()]
     check_frames_finite(run, [*names.values(), *sequence_times(args.sequence)])
     field_weights = {} if run.field is None else run.field.state_dict()  # a baked scene has no network
     check_finite(args.run, "the field's weights", field_weights)

@@ -12,6 +12,7 @@ const SH_C3 = [-0.5900435899266435, 2.890611442640554, -0.4570457994644658, 0.37
   -0.4570457994644658, 1.445305721320277, -0.5900435899266435];
 const EPS2D = 0.3, FRUSTUM_MARGIN = 0.3, ALPHA_THRESHOLD = 1 / 255, MAX_EXTENT = 3.33, NEAR = 0.01;
 const CHANNELS = 10;
+const TIMED_FRAMES = 30;
 const FLOATS_PER_SPLAT = 11; // mean2d, radius (2 each), conic (3), opacity, rgb (3): the instance layout
 
 const VERTEX_SHADER = `#version 300 es
@@ -76,6 +77,15 @@ function shColor(out, o, coeffs, base, bases, x, y, z) {
   }
 }
 
+// The dataset camera's intrinsics for a canvas of width x height: the focal scaled so the camera's
+// whole field of view fits the canvas (the longer side of the window shows more, not a stretch),
+// its principal point moved with it.
+function fitIntrinsics(c, width, height) {
+  const s = Math.min(width / c.width, height / c.height);
+  return { width, height, fx: c.fx * s, fy: c.fy * s, cx: c.cx * s + (width - c.width * s) / 2,
+    cy: c.cy * s + (height - c.height * s) / 2 };
+}
+
 class Player {
   constructor(canvas, meta, buffer) {
     this.meta = meta;
@@ -98,15 +108,26 @@ class Player {
     this.canvas = canvas;
     this.time = 0;
     this.frames = 0;
+    this.timings = [];
+    this.probe = new Uint8Array(4);
     this.setCamera(0);
     this.initGL();
   }
 
   setCamera(index) {
-    const c = this.meta.cameras[index];
-    this.camera = { width: c.width, height: c.height, fx: c.fx, fy: c.fy, cx: c.cx, cy: c.cy, view: c.viewmat.slice() };
-    this.canvas.width = c.width;
-    this.canvas.height = c.height;
+    this.cameraIndex = index;
+    this.view = this.meta.cameras[index].viewmat.slice();
+    this.fit();
+  }
+
+  // The canvas at the window's size in device pixels, the camera's intrinsics scaled to it.
+  fit() {
+    const dpr = window.devicePixelRatio || 1;
+    const width = Math.max(1, Math.round(this.canvas.clientWidth * dpr));
+    const height = Math.max(1, Math.round(this.canvas.clientHeight * dpr));
+    if (this.canvas.width !== width) this.canvas.width = width;
+    if (this.canvas.height !== height) this.canvas.height = height;
+    this.camera = { ...fitIntrinsics(this.meta.cameras[this.cameraIndex], width, height), view: this.view };
   }
 
   initGL() {
@@ -235,9 +256,15 @@ class Player {
     return instances;
   }
 
+  // One frame. Its cost is measured, not inferred from the frame rate (which the display's refresh
+  // and the time between frames set): the CPU's part (motion, projection, sort) and the GPU's
+  // (upload, draw, waited for by reading a pixel back, so what it reports is what the frame took).
   draw() {
+    this.fit();
+    const begin = performance.now();
     this.interpolate(this.time);
     const instances = this.project();
+    const projected = performance.now();
     const gl = this.gl, bg = this.meta.background;
     gl.viewport(0, 0, this.canvas.width, this.canvas.height);
     gl.uniform2f(this.viewport, this.canvas.width, this.canvas.height);
@@ -246,7 +273,21 @@ class Player {
     gl.bindBuffer(gl.ARRAY_BUFFER, this.instanceBuffer);
     gl.bufferData(gl.ARRAY_BUFFER, instances, gl.DYNAMIC_DRAW);
     gl.drawArraysInstanced(gl.TRIANGLE_STRIP, 0, 4, instances.length / 12);
+    // Reading a pixel back waits until the frame is drawn (Chromium's gl.finish did not: 0.1-1.2 ms
+    // where the frame took 290 in SwiftShader).
+    gl.readPixels(0, 0, 1, 1, gl.RGBA, gl.UNSIGNED_BYTE, this.probe);
+    const end = performance.now();
+    this.timings.push([projected - begin, end - projected]);
+    if (this.timings.length > TIMED_FRAMES) this.timings.shift();
     this.frames++;
+  }
+
+  // Mean CPU and GPU milliseconds over the last TIMED_FRAMES frames drawn.
+  frameTime() {
+    const count = this.timings.length;
+    const cpu = this.timings.reduce((sum, t) => sum + t[0], 0) / Math.max(count, 1);
+    const gpu = this.timings.reduce((sum, t) => sum + t[1], 0) / Math.max(count, 1);
+    return { cpu, gpu, total: cpu + gpu, frames: count };
   }
 
   // Orbit about `target`: yaw about the world's up (the first camera's -y), pitch about the camera's x.
@@ -277,6 +318,18 @@ class Player {
     this.setPose(rows, centre.map((c, a) => this.target[a] + (c - this.target[a]) * factor));
   }
 
+  // Move the camera and the point it orbits across the view: `dx`, `dy` in device pixels, the
+  // scene under the pointer following it at the target's depth.
+  pan(dx, dy) {
+    const v = this.camera.view;
+    const rows = [0, 1, 2].map((row) => [v[row * 4], v[row * 4 + 1], v[row * 4 + 2]]);
+    const centre = [0, 1, 2].map((a) => -(rows[0][a] * v[3] + rows[1][a] * v[7] + rows[2][a] * v[11]));
+    const depth = [0, 1, 2].reduce((sum, a) => sum + rows[2][a] * (this.target[a] - centre[a]), 0);
+    const shift = [0, 1, 2].map((a) => -(rows[0][a] * dx / this.camera.fx + rows[1][a] * dy / this.camera.fy) * depth);
+    this.target = this.target.map((t, a) => t + shift[a]);
+    this.setPose(rows, centre.map((c, a) => c + shift[a]));
+  }
+
   setPose(rows, centre) {
     const v = this.camera.view;
     for (let row = 0; row < 3; row++) {
@@ -286,62 +339,180 @@ class Player {
   }
 }
 
+// --- loading: the scene beside the page (scene.json, scene.bin) or inside it (the single-file export)
+
+const FORMAT = "liquidgs-web/1";
+
+class SceneError extends Error {}
+
+function sceneBytes(meta) {
+  const n = meta.gaussians, k = meta.keyframes;
+  return 4 * (2 * n * CHANNELS + n + n * meta.sh_stored * 3) + 2 * k * n * CHANNELS;
+}
+
+async function fetched(name, read) {
+  let response;
+  try {
+    response = await fetch(name);
+  } catch (err) {
+    throw new SceneError(`${name} could not be loaded (${err.message})`);
+  }
+  if (!response.ok) throw new SceneError(`${name} could not be loaded: HTTP ${response.status} ${response.statusText}`.trim());
+  return read(response);
+}
+
+async function loadScene() {
+  const embedded = document.getElementById("scene-data");
+  if (embedded) {
+    const meta = JSON.parse(document.getElementById("scene-meta").textContent);
+    const text = atob(embedded.textContent.trim());
+    const bytes = new Uint8Array(text.length);
+    for (let i = 0; i < text.length; i++) bytes[i] = text.charCodeAt(i);
+    return checked(meta, bytes.buffer, "the scene inside this page");
+  }
+  if (location.protocol === "file:") {
+    throw new SceneError("This page was opened from disk, where the browser will not let it read scene.json and scene.bin " +
+      "beside it. Serve its folder instead: run `python -m http.server` in it and open localhost:8000, " +
+      "or export one file that opens from disk: liquidgs export --format html.");
+  }
+  const text = await fetched("scene.json", (r) => r.text());
+  let meta;
+  try {
+    meta = JSON.parse(text);
+  } catch (err) {
+    throw new SceneError(`scene.json is not valid JSON (${err.message}): truncated, or not written by liquidgs export`);
+  }
+  return checked(meta, await fetched("scene.bin", (r) => r.arrayBuffer()), "scene.bin");
+}
+
+function checked(meta, buffer, where) {
+  if (meta.format !== FORMAT) throw new SceneError(`scene.json: format ${JSON.stringify(meta.format)}, where this player reads ${FORMAT}`);
+  if (!meta.cameras || !meta.cameras.length) throw new SceneError("scene.json: no cameras");
+  const expected = sceneBytes(meta);
+  if (buffer.byteLength !== expected) {
+    throw new SceneError(`${where} holds ${buffer.byteLength.toLocaleString("en")} bytes, where ${meta.gaussians.toLocaleString("en")} ` +
+      `Gaussians and ${meta.keyframes} keyframes need ${expected.toLocaleString("en")}: ` +
+      (buffer.byteLength < expected ? "it is truncated" : "it belongs to another export") + "; export the scene again");
+  }
+  return [meta, buffer];
+}
+
+// --- the address: #t=0.370&camera=NAME opens at that time and camera
+
+function parseLink(hash, cameras) {
+  const fields = new URLSearchParams(hash.replace(/^#/, ""));
+  const notes = [];
+  let time = null, camera = null;
+  if (fields.has("t")) {
+    const asked = fields.get("t"), value = Number(asked);
+    if (asked.trim() === "" || !Number.isFinite(value)) notes.push(`time ${JSON.stringify(asked)} in the link is not a number: showing time 0`);
+    else {
+      time = Math.min(Math.max(value, 0), 1);
+      if (time !== value) notes.push(`time ${asked} in the link is outside [0, 1]: clamped to ${time}`);
+    }
+  }
+  if (fields.has("camera")) {
+    const name = fields.get("camera"), index = cameras.findIndex((c) => c.name === name);
+    if (index < 0) {
+      notes.push(`camera ${JSON.stringify(name)} in the link is not one of this scene's ${cameras.length} cameras: showing ${cameras[0].name}`);
+    } else camera = index;
+  }
+  return { time, camera, notes };
+}
+
+function linkTo(time, camera) {
+  const name = encodeURIComponent(camera).replace(/%2F/g, "/"); // "train/r_003" reads better unescaped
+  return `${location.href.replace(/#.*$/, "")}#t=${time.toFixed(4)}&camera=${name}`;
+}
+
 async function start() {
-  const [meta, buffer] = await Promise.all([
-    fetch("scene.json").then((r) => r.json()),
-    fetch("scene.bin").then((r) => r.arrayBuffer()),
-  ]);
+  const [meta, buffer] = await loadScene();
+  const message = document.getElementById("message");
   const player = new Player(document.getElementById("canvas"), meta, buffer);
   player.target = meta.target;
   const first = meta.cameras[0].viewmat;
   player.up = [-first[4], -first[5], -first[6]];
   const slider = document.getElementById("time"), button = document.getElementById("play");
-  const cameraSelect = document.getElementById("camera"), fpsLabel = document.getElementById("fps");
+  const cameraSelect = document.getElementById("camera"), timeLabel = document.getElementById("timelabel");
+  const frameLabel = document.getElementById("frametime");
   meta.cameras.forEach((c, i) => cameraSelect.add(new Option(c.name, String(i))));
-  let playing = false, last = performance.now(), frameTimes = [];
-  const show = () => { slider.value = String(player.time); player.draw(); };
-  slider.addEventListener("input", () => { player.time = Number(slider.value); player.draw(); });
+  let playing = false, last = performance.now();
+  const show = () => {
+    slider.value = String(player.time);
+    timeLabel.textContent = `t = ${player.time.toFixed(3)}`;
+    player.draw();
+    const t = player.frameTime();
+    frameLabel.textContent = `${t.total.toFixed(1)} ms/frame (CPU ${t.cpu.toFixed(1)} + GPU ${t.gpu.toFixed(1)}, mean of ${t.frames})`;
+  };
+  const open = (hash) => {
+    const link = parseLink(hash, meta.cameras);
+    player.setCamera(link.camera ?? 0);
+    cameraSelect.value = String(player.cameraIndex);
+    player.time = link.time ?? 0;
+    message.textContent = link.notes.join("\n");
+    show();
+  };
+  slider.addEventListener("input", () => { player.time = Number(slider.value); show(); });
   button.addEventListener("click", () => { playing = !playing; button.textContent = playing ? "pause" : "play"; last = performance.now(); });
-  cameraSelect.addEventListener("change", () => { player.setCamera(Number(cameraSelect.value)); player.draw(); });
+  cameraSelect.addEventListener("change", () => { player.setCamera(Number(cameraSelect.value)); show(); });
+  document.getElementById("copy").addEventListener("click", async () => {
+    const link = linkTo(player.time, meta.cameras[player.cameraIndex].name);
+    try {
+      await navigator.clipboard.writeText(link);
+      message.textContent = `copied ${link}`;
+    } catch (err) {
+      message.textContent = `the browser refused the clipboard (${err.message}); the link: ${link}`;
+    }
+  });
+  window.addEventListener("hashchange", () => open(location.hash));
+  window.addEventListener("resize", show);
+  // Drag orbits; with the right button or shift held it pans. The wheel zooms.
   let dragging = null;
-  player.canvas.addEventListener("pointerdown", (e) => { dragging = [e.clientX, e.clientY]; player.canvas.setPointerCapture(e.pointerId); });
+  player.canvas.addEventListener("contextmenu", (e) => e.preventDefault());
+  player.canvas.addEventListener("pointerdown", (e) => {
+    dragging = { x: e.clientX, y: e.clientY, pan: e.button === 2 || e.shiftKey };
+    player.canvas.setPointerCapture(e.pointerId);
+  });
   player.canvas.addEventListener("pointerup", () => { dragging = null; });
   player.canvas.addEventListener("pointermove", (e) => {
     if (!dragging) return;
-    player.orbit(-(e.clientX - dragging[0]) * 0.01, -(e.clientY - dragging[1]) * 0.01);
-    dragging = [e.clientX, e.clientY];
-    player.draw();
+    const dx = e.clientX - dragging.x, dy = e.clientY - dragging.y;
+    if (dragging.pan) player.pan(dx * devicePixelRatio, dy * devicePixelRatio);
+    else player.orbit(-dx * 0.01, -dy * 0.01);
+    dragging.x = e.clientX; dragging.y = e.clientY;
+    show();
   });
-  player.canvas.addEventListener("wheel", (e) => { e.preventDefault(); player.zoom(Math.exp(e.deltaY * 0.001)); player.draw(); }, { passive: false });
+  player.canvas.addEventListener("wheel", (e) => { e.preventDefault(); player.zoom(Math.exp(e.deltaY * 0.001)); show(); }, { passive: false });
   const tick = (now) => {
     if (playing) {
       player.time = (player.time + (now - last) / 1000 / meta.duration_s) % 1;
-      frameTimes.push(now);
-      while (frameTimes.length && now - frameTimes[0] > 1000) frameTimes.shift();
-      fpsLabel.textContent = `${frameTimes.length} fps`;
       show();
     }
     last = now;
     requestAnimationFrame(tick);
   };
   requestAnimationFrame(tick);
-  show();
-  // For scripts and tests: jump to a camera and time, or measure the frame rate.
+  open(location.hash);
+  // For scripts and tests: jump to a camera and time, measure frames, read the camera and the link.
   window.player = {
     show(camera, time) { player.setCamera(camera); cameraSelect.value = String(camera); player.time = time; show(); return player.frames; },
     benchmark(frames) {
-      const begin = performance.now();
+      player.timings = [];
       for (let i = 0; i < frames; i++) { player.time = i / frames; player.draw(); }
-      player.gl.finish();
-      return (frames * 1000) / (performance.now() - begin);
+      return player.frameTime();
     },
-    orbit(dx, dy) { player.orbit(dx, dy); player.draw(); },
-    view() { return Array.from(player.camera.view); },
+    orbit(dx, dy) { player.orbit(dx, dy); show(); },
+    state() {
+      const { width, height, fx, fy, cx, cy } = player.camera;
+      return { camera: player.cameraIndex, time: player.time, width, height, fx, fy, cx, cy, view: Array.from(player.view) };
+    },
+    link() { return linkTo(player.time, meta.cameras[player.cameraIndex].name); },
   };
   document.body.dataset.ready = "true";
 }
 
 start().catch((err) => {
-  document.getElementById("message").textContent = String(err);
-  console.error(err);
+  document.getElementById("message").textContent = err instanceof SceneError ? err.message : `the player failed: ${err}`;
+  document.body.dataset.ready = "error";
+  if (!(err instanceof SceneError)) console.error(err);
 });
