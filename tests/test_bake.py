@@ -38,16 +38,17 @@ def axis_angle_quats(angle: torch.Tensor) -> torch.Tensor:
 class AnalyticRun:
     """A stand-in for a trained run whose Gaussians follow `path(t) -> means [N,3]`."""
 
-    def __init__(self, path, n: int, size: float = 0.1):
+    def __init__(self, path, n: int, size: float = 0.1, spin: float = 1.0):
         self.path = path
         self.n = n
         self.size = size
+        self.spin = spin
         self.params = {"opacities": torch.zeros(n)}  # opacity 0.5: every Gaussian is checked
 
     def at_time(self, time: float) -> Deformed:
         means = self.path(time)
         scales = torch.full((self.n, 3), self.size)
-        return Deformed(means, axis_angle_quats(torch.full((self.n,), time)), scales, None, None)
+        return Deformed(means, axis_angle_quats(torch.full((self.n,), self.spin * time)), scales, None, None)
 
 
 def keyframes_of(run: AnalyticRun, count: int) -> torch.Tensor:
@@ -104,17 +105,25 @@ def test_quaternion_signs_follow_the_keyframe_before():
     assert torch.allclose(halfway, axis_angle_quats(torch.tensor(0.25)), atol=1e-3)
 
 
-def test_keyframes_double_until_the_budget_holds():
-    wave = AnalyticRun(lambda t: torch.tensor([[0.5 * math.sin(6 * math.pi * t), 0.0, 0.0]]), 1)
-    distilled = distil(wave, BakeSettings(tolerance=0.1, min_keyframes=5, max_keyframes=129))
+def test_each_gaussian_gets_the_keyframes_its_motion_needs():
+    def paths(t: float) -> torch.Tensor:
+        wave = 0.5 * math.sin(6 * math.pi * t)
+        return torch.tensor([[0.3, 0.2, 1.0], [0.8 * t, 0.0, 0.0], [wave, 0.0, 0.0]])  # still, line, three periods
+
+    run = AnalyticRun(paths, 3, spin=0.0)
+    distilled = distil(run, BakeSettings(tolerance=0.1, min_keyframes=5, max_keyframes=129))
     report = distilled.report
     assert report["gaussians_over_budget"] == 0 and report["max_relative_error"] <= 0.1
-    count = distilled.keyframes.shape[0]
-    assert count in (17, 33, 65)  # 5 keyframes cannot hold three periods within 0.1 of the size
-    coarser = keyframes_of(wave, (count + 1) // 2)
-    mid = (keyframe_times((count + 1) // 2)[:-1] + keyframe_times((count + 1) // 2)[1:]) / 2
-    coarse_error = max(float((interpolate(coarser, t)[:, :3] - wave.path(t)).norm()) for t in mid.tolist())
-    assert coarse_error > 0.1 * wave.size  # the count before it did not hold the budget
+    counts = distilled.tracks.counts.tolist()
+    assert counts[:2] == [1, 5] and counts[2] in (17, 33, 65)  # 5: the fewest for a Gaussian that moves
+    assert sum(int(c) for c in report["keyframe_counts"].values()) == 3
+    # The count before the wave's did not hold the budget: the ladder stopped at the first that does.
+    coarser = keyframes_of(run, (counts[2] + 1) // 2)[:, 2:]
+    times = keyframe_times(2 * 129 - 1)
+    error = max(float((interpolate(coarser, t)[:, :3] - paths(t)[2:]).norm()) for t in times.tolist())
+    assert error > 0.75 * 0.1 * run.size
+    for t in (0.0, 0.13, 0.5, 0.91):  # the tracks as stored (quantised) stay within the budget
+        assert float((distilled.tracks.at_time(t)[:, :3] - paths(t)).norm(dim=-1).max()) <= 0.1 * run.size
 
 
 def test_motion_beyond_the_budget_is_baked_and_located():
@@ -123,8 +132,8 @@ def test_motion_beyond_the_budget_is_baked_and_located():
         means[1, 0] = 1.0 if t >= 0.6 else 0.0  # Gaussian 1 teleports at t = 0.6; the others rest
         return means
 
-    distilled = distil(AnalyticRun(jump, 3), BakeSettings(tolerance=0.1, min_keyframes=3, max_keyframes=17))
-    assert distilled.keyframes.shape[0] == 17
+    distilled = distil(AnalyticRun(jump, 3, spin=0.0), BakeSettings(tolerance=0.1, min_keyframes=3, max_keyframes=17))
+    assert distilled.tracks.counts.tolist() == [1, 17, 1]
     over = distilled.over_budget
     assert over and {item["gaussian"] for item in over} == {1}
     assert all(abs(item["time"] - 0.6) < 0.1 for item in over)
