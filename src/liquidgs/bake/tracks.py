@@ -27,9 +27,9 @@ from liquidgs.bake.motion import (
     POSITION,
     QUATERNION,
     SCALE,
-    interpolate,
     interpolation_matrix,
     keyframe_times,
+    spline_weights,
 )
 
 CHANNEL_GROUPS = (POSITION, QUATERNION, SCALE)
@@ -53,12 +53,24 @@ class Tracks:
     def gaussians(self) -> int:
         return int(self.counts.shape[0])
 
+    def __post_init__(self):
+        still = [(index, keyframes[0]) for index, keyframes in self.groups if keyframes.shape[0] == 1]
+        self._still = (torch.cat([i for i, _ in still]), torch.cat([k for _, k in still])) if still else None
+        self._moving = [(index, keyframes) for index, keyframes in self.groups if keyframes.shape[0] > 1]
+
     def at_time(self, time: float) -> torch.Tensor:
-        """The state [N, 10] at `time`, quaternions unit length."""
+        """The state [N, 10] at `time`, quaternions unit length: the Gaussians of one keyframe
+        copied, each other count one weighted sum of its (up to) four keyframes around `time`
+        (motion.spline_weights), the quaternions normalised once for all."""
         keys = self.groups[0][1]
         state = torch.empty(self.gaussians, CHANNELS, dtype=keys.dtype, device=keys.device)
-        for index, keyframes in self.groups:
-            state[index] = interpolate(keyframes, time)
+        if self._still is not None:
+            state[self._still[0]] = self._still[1]
+        for index, keyframes in self._moving:
+            first, weights = spline_weights(keyframes.shape[0], time)
+            span = keyframes[first : first + len(weights)]
+            state[index] = torch.tensordot(torch.tensor(weights, dtype=span.dtype, device=span.device), span, 1)
+        state[:, QUATERNION] = torch.nn.functional.normalize(state[:, QUATERNION], dim=-1)
         return state
 
     def uniform(self) -> torch.Tensor:
