@@ -161,10 +161,14 @@ def export_splatv(run, path: Path, console: Console | None) -> Path:
         n = run.params["means"].shape[0]
         pieces = ", ".join(f"{count:,} x {p}" for p, count in report["pieces"].items())
         kept = fitted.motion_kept
-        kept = "no motion to keep" if kept is None else f"keeps {100 * kept:.1f}% of the motion"
+        kept = (
+            "the run has no motion (no Gaussian moves), so there is none to keep"
+            if kept is None
+            else f"it keeps {100 * kept:.1f}% of the motion"
+        )
         against = "the field" if run.field is not None else "the baked scene"
         console.print(
-            f"splatv: {report['records']:,} records for {n:,} Gaussians (pieces: {pieces}); {kept}; "
+            f"splatv: {kept}; {report['records']:,} records for {n:,} Gaussians (Gaussians x pieces: {pieces}); "
             f"{sum(scores) / len(scores):.1f} dB against {against} on {len(scores)} views (worst {min(scores):.1f})",
             highlight=False,
         )
