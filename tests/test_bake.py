@@ -17,7 +17,7 @@ import torch
 from liquidgs.bake.distil import BakeSettings, distil
 from liquidgs.bake.motion import QUATERNION, align_quaternion_signs, interpolate, keyframe_times, pack_keyframe
 from liquidgs.bake.scene import BakedRun
-from liquidgs.bake.tracks import Tracks, pack, unpack
+from liquidgs.bake.tracks import Tracks, from_row_codes, pack, row_codes, unpack
 from liquidgs.eval.metrics import psnr
 from liquidgs.train.dataset import load_run_dataset
 from liquidgs.train.model import Deformed
@@ -198,6 +198,11 @@ def test_tracks_are_stored_in_codes_of_each_gaussians_range():
     for t in (0.0, 0.3, 0.77):  # one weighted sum per count equals each Gaussian's own spline
         for index, keys in restored.groups:
             assert torch.allclose(restored.at_time(t)[index], interpolate(keys, t), atol=1e-6)
+    sh = torch.randn(7, 15, 3, generator=torch.Generator().manual_seed(1))
+    sh[3] = 0.25  # a Gaussian whose coefficients are all one value: span 0
+    back = from_row_codes(row_codes(sh))
+    span = (sh.amax((1, 2)) - sh.amin((1, 2)))[:, None, None]
+    assert torch.all((back - sh).abs() <= span * (1 + 2**-10) / 510 + 1e-3 * sh.abs() + 1e-6)
     truncated = {**stored, "codes8": stored["codes8"][:-1]}
     with pytest.raises(ValueError, match="8-bit codes end before the keyframes"):
         unpack(truncated, 7)

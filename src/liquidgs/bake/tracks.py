@@ -13,7 +13,9 @@ against its Gaussian's own range over its keyframes:
                   channel group, then 8 before 16 bits), each block [K, n, width] with its
                   Gaussians in ascending order
 
-A Gaussian of one keyframe stores its value in `low` (span 0) and no codes.
+A Gaussian of one keyframe stores its value in `low` (span 0) and no codes. row_codes holds
+other per-Gaussian values (a baked scene's higher SH coefficients) the same way, 8 bits of each
+Gaussian's range.
 """
 
 from __future__ import annotations
@@ -158,3 +160,22 @@ def unpack(payload: dict[str, torch.Tensor], n: int) -> Tracks:
     if any(used[bits] != streams[bits].numel() for bits in used):
         raise ValueError("more codes than the keyframes hold")
     return Tracks(counts, [((counts == count).nonzero().flatten(), keyframes) for count, keyframes in groups.items()])
+
+
+def row_codes(values: torch.Tensor) -> dict[str, torch.Tensor]:
+    """values [N, ...] as 8-bit codes of each row's own range: low and span float16 [N] (the span
+    rounded up, so that the highest value still has a code), codes uint8 [N, ...]."""
+    flat = values.detach().float().cpu().reshape(values.shape[0], -1)
+    low = (flat.amin(1) if flat.shape[1] else torch.zeros(flat.shape[0])).to(torch.float16)
+    high = flat.amax(1) if flat.shape[1] else torch.zeros(flat.shape[0])
+    span = ((high - low.float()) * (1 + 2**-10)).clamp_min(0).to(torch.float16)
+    scale = torch.where(span > 0, span.float(), torch.ones(len(span)))
+    codes = ((flat - low.float()[:, None]) / scale[:, None] * CODE_LEVELS[8]).round().clamp(0, CODE_LEVELS[8])
+    return {"low": low, "span": span, "codes": codes.to(torch.uint8).reshape(values.shape)}
+
+
+def from_row_codes(stored: dict[str, torch.Tensor]) -> torch.Tensor:
+    """row_codes()'s values, float32."""
+    codes = stored["codes"].float()
+    shape = (-1,) + (1,) * (codes.ndim - 1)
+    return stored["low"].float().reshape(shape) + stored["span"].float().reshape(shape) * codes / CODE_LEVELS[8]

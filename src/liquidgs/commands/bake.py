@@ -30,6 +30,7 @@ from liquidgs.atomic import build_atomically, save_torch_atomic, write_json_atom
 from liquidgs.bake.distil import BakeSettings, check_finished, describe_over_budget, distil
 from liquidgs.bake.motion import CHANNELS
 from liquidgs.bake.scene import BAKED_FORMAT, MANIFEST, SCENE, STORED_PARAMS, is_baked
+from liquidgs.bake.tracks import row_codes
 from liquidgs.data.cameras_file import CAMERAS_FILE, cameras_record
 from liquidgs.data.capture import refuse_taken
 from liquidgs.errors import ConfigError, LiquidGSError, check_finite
@@ -88,9 +89,17 @@ def bake(args: BakeArgs, console: Console | None = None) -> dict:
     settings = BakeSettings(args.tolerance, args.min_keyframes, args.max_keyframes, args.pixel_floor)
     distilled = distil(run, settings, [frame.camera for frame in (*scene.train, *scene.test)])
     params = {k: run.params[k].detach().cpu() for k in STORED_PARAMS}
-    check_finite(args.run, "the Gaussians and their keyframes", [*params.values(), distilled.stored["low"]])
-    payload = {"params": {k: v.to(torch.float16).contiguous() for k, v in params.items()}, "tracks": distilled.stored}
-    as_stored = [*payload["params"].values(), distilled.stored["span"]]  # float16 overflows to infinity
+    check_finite(
+        args.run, "the Gaussians and their keyframes", [*params.values(), run.params["shN"], distilled.stored["low"]]
+    )
+    sh_rest = row_codes(run.params["shN"])
+    payload = {
+        "params": {k: v.to(torch.float16).contiguous() for k, v in params.items()},
+        "sh_rest": sh_rest,
+        "tracks": distilled.stored,
+    }
+    # float16 overflows to infinity
+    as_stored = [*payload["params"].values(), distilled.stored["span"], sh_rest["low"], sh_rest["span"]]
     check_finite(args.run, "the Gaussians and their keyframes as stored", as_stored)
     n = run.params["means"].shape[0]
     manifest = {
@@ -105,7 +114,8 @@ def bake(args: BakeArgs, console: Console | None = None) -> dict:
         "keyframe_times": "per Gaussian, uniform over [0, 1] (the capture's normalised time range)",
         "interpolation": "Catmull-Rom per channel (position, wxyz quaternion renormalised, scale)",
         "channels": CHANNELS,
-        "storage": "bake/tracks.py: per Gaussian and channel, 8- or 16-bit codes of its range; SH float16",
+        "storage": "bake/tracks.py: per Gaussian and channel, 8- or 16-bit codes of its range; opacity and "
+        "SH degree 0 float16, higher SH 8-bit codes of each Gaussian's range",
         "error": distilled.report,
     }
 
