@@ -76,7 +76,7 @@ def site(tmp_path_factory):
     (root / "index.html").symlink_to(SPLATV_PLAYER / "index.html")
     (root / "node_modules").symlink_to(SPLATV_PLAYER / "node_modules")
     sheet, cameras = SwingingSheet(), [camera()]
-    for name, most in (("pieces", 17), ("one_cubic", 1)):
+    for name, most in (("pieces", 9), ("one_cubic", 1)):
         fitted = fit_splatv(sheet, cameras, most=most)
         (root / f"{name}.splatv").write_bytes(splatv_bytes(fitted.model, [splatv_camera(cameras[0], "front")]))
     handler = functools.partial(QuietHandler, directory=str(root))
