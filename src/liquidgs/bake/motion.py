@@ -19,6 +19,15 @@ SCALE = slice(7, 10)
 CHANNELS = 10
 
 
+def count_ladder(first: int, most: int) -> list[int]:
+    """1, then `first` doubled as 2K - 1 (every time of K uniform times stays one of the next count's)
+    up to `most`: the counts a Gaussian's keyframes (or splatv pieces) are chosen from."""
+    counts = [1] + ([first] if first <= most and first > 1 else [])
+    while len(counts) > 1 and 2 * counts[-1] - 1 <= most:
+        counts.append(2 * counts[-1] - 1)
+    return counts
+
+
 def keyframe_times(count: int) -> torch.Tensor:
     """`count` uniform times covering [0, 1], the capture's normalised time range."""
     return torch.linspace(0.0, 1.0, count, dtype=torch.float64)

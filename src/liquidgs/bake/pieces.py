@@ -24,7 +24,7 @@ import torch
 
 from liquidgs.bake.distil import pixel_widths, sample_field
 from liquidgs.bake.formats import PLAYER_CUT, TEMPORAL_CENTRE, TEMPORAL_SCALE, SplatvModel
-from liquidgs.bake.motion import POSITION, QUATERNION, SCALE, align_quaternion_signs, keyframe_times
+from liquidgs.bake.motion import POSITION, QUATERNION, SCALE, align_quaternion_signs, count_ladder, keyframe_times
 from liquidgs.eval.metrics import psnr
 from liquidgs.sh import SH_C0, eval_sh
 from liquidgs.train.model import render_frame
@@ -52,14 +52,6 @@ class Fitted:
     """1 - (squared position residual) / (squared position deviation from each Gaussian's mean
     position) of the pieces' opacity-weighted position, over the samples; None where no Gaussian moves."""
     report: dict
-
-
-def ladder(most: int) -> list[int]:
-    """1, 2, 3, 5, 9, ... up to `most` pieces."""
-    counts = [1, 2][: max(most, 1)]
-    while len(counts) > 1 and 2 * counts[-1] - 1 <= most:
-        counts.append(2 * counts[-1] - 1)
-    return counts
 
 
 def windows(pieces: int, times: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, float]:
@@ -162,7 +154,7 @@ def fit_splatv(run, cameras=(), tolerance: float = TOLERANCE, most: int = MAX_PI
     opacity = torch.sigmoid(run.params["opacities"].detach().cpu().double()).flatten()
     rgb = seen_colour(run, states[SAMPLES // 2, :, POSITION], cameras)
     counts = torch.full((n,), 0, dtype=torch.long)
-    steps = ladder(most)
+    steps = count_ladder(2, most)
     records, blended, errors = [], torch.zeros(SAMPLES, n, 3, dtype=torch.float64), torch.zeros(n, dtype=torch.float64)
     for pieces in steps:
         index = (counts == 0).nonzero().flatten()
