@@ -111,7 +111,7 @@ def bake(args: BakeArgs, console: Console | None = None) -> dict:
     with make_progress(console or Console(quiet=True)) as progress:
         task = progress.add_task("bake", total=samples, keyframes=settings.ladder()[-1], gaussians=n)
         distilled = distil(run, settings, [frame.camera for frame in (*scene.train, *scene.test)],
-                           lambda: progress.advance(task))  # fmt: skip
+                           lambda: progress.update(task, advance=1))  # fmt: skip
     params = {k: run.params[k].detach().cpu() for k in STORED_PARAMS}
     check_finite(
         args.run, "the Gaussians and their keyframes", [*params.values(), run.params["shN"], distilled.stored["low"]]
