@@ -202,7 +202,7 @@ class Pickled:
          "baked.json: baked by an older liquidgs (liquidgs-baked/1: no source record, scene print or cameras); "
          "bake the run again"),
         (lambda b: damage_scene(b, lambda p: p.update(extra=Pickled())), "scene.pt: unreadable baked scene"),
-        (lambda b: damage_scene(b, lambda p: p["keyframes"].view(-1)[:7].fill_(float("nan"))),
+        (lambda b: damage_scene(b, lambda p: p["tracks"]["low"].view(-1)[:7].fill_(float("nan"))),
          "scene.pt: 7 non-finite values (NaN or infinity); bake the run again"),
         (lambda b: torch.save(torch.load(b / "scene.pt", weights_only=True), b / "scene.pt") or
          (b / "scene.pt").write_bytes((b / "scene.pt").read_bytes()[:-100]),

@@ -99,6 +99,8 @@ def coloured_bake(run: Path, out: Path) -> Path:
     a file format nothing to get wrong."""
     import torch
 
+    from liquidgs.bake.tracks import from_row_codes, row_codes
+
     few = ["--min-keyframes", "5", "--max-keyframes", "9"]  # players are compared with this bake, not the field
     code, _, err = run_cli(["bake", "--run", str(run), "--out", str(out), *few])
     assert code == 0, err
@@ -107,8 +109,10 @@ def coloured_bake(run: Path, out: Path) -> Path:
     params = payload["params"]
     generator = torch.Generator().manual_seed(0)
     params["opacities"] += 4.0
-    params["sh0"] = torch.rand(params["sh0"].shape, generator=generator) * 3 - 1.5
-    params["shN"] = (torch.rand(params["shN"].shape, generator=generator) - 0.5) * 0.4
+    params["sh0"] = (torch.rand(params["sh0"].shape, generator=generator) * 3 - 1.5).to(params["sh0"].dtype)
+    # The higher SH as the baked format stores them: 8-bit codes of each Gaussian's range.
+    sh_rest_shape = from_row_codes(payload["sh_rest"]).shape
+    payload["sh_rest"] = row_codes((torch.rand(sh_rest_shape, generator=generator) - 0.5) * 0.4)
     torch.save(payload, scene)
     rehash_baked_scene(out)  # the folder's record of its scene.pt, as a bake of it would write
     return out

@@ -2,8 +2,8 @@
 
 On the run's test views: PSNR of the baked render against the field's render, the test PSNR of
 each against ground truth (8-bit, as eval scores it) and its change, bytes per Gaussian, the PSNR
-against the field of the splatv model fitted to the baked scene (as the file stores it) and the
-share of the motion it keeps, and the
+against the field of the splatv model fitted to the baked scene (as the file stores it), its
+records per Gaussian and the share of the motion it keeps, and the
 render time of each (the same cameras, resolution and Gaussians; the fastest of --repeats passes over
 the views, by the wall clock and by the process's CPU time) with the speed-ups; and the CPU time
 of a frame's parts: the field's deformation, the keyframe interpolation, the rasteriser, with the
@@ -21,7 +21,8 @@ from pathlib import Path
 
 import torch
 
-from liquidgs.bake.formats import fit_splatv, parse_splatv, splatv_bytes
+from liquidgs.bake.formats import parse_splatv, splatv_bytes
+from liquidgs.bake.pieces import agreement, fit_splatv
 from liquidgs.bake.scene import is_baked, load_baked
 from liquidgs.errors import ConfigError, LiquidGSError
 from liquidgs.eval.metrics import psnr, quantize_8bit
@@ -86,19 +87,15 @@ def measure(run_dir: Path, baked_dir: Path, repeats: int) -> dict:
     def baked_render(frame):
         return baked.render(frame.camera, frame.time, background).rgb.clamp(0, 1)
 
-    fitted, motion_kept = fit_splatv(baked)
-    splatv, _ = parse_splatv(splatv_bytes(fitted, []))  # as the file holds it: float16, 8-bit colour
+    fitted = fit_splatv(baked, [f.camera for f in (*dataset.test, *dataset.train)])
+    splatv, _ = parse_splatv(splatv_bytes(fitted.model, []))  # as the file holds it: float16, 8-bit colour
+    splatv_agreement = agreement(run, splatv, frames, background)
 
-    def splatv_render(frame):
-        g = splatv.at_time(frame.time)
-        return render_frame(g, frame.camera, sh_degree=0, background=background, backend=run.config.backend).rgb
-
-    agreement, field_gt, baked_gt, splatv_agreement = [], [], [], []
+    baked_agreement, field_gt, baked_gt = [], [], []
     for frame in frames:
         a, b = field_render(frame), baked_render(frame)
         truth = quantize_8bit(frame.image().clamp(0, 1))
-        agreement.append(float(psnr(b, a)))
-        splatv_agreement.append(float(psnr(splatv_render(frame).clamp(0, 1), a)))
+        baked_agreement.append(float(psnr(b, a)))
         field_gt.append(float(psnr(quantize_8bit(a), truth)))
         baked_gt.append(float(psnr(quantize_8bit(b), truth)))
     field_seconds, field_cpu = fastest(field_render, frames, repeats)
@@ -120,17 +117,20 @@ def measure(run_dir: Path, baked_dir: Path, repeats: int) -> dict:
         "preset": run.config.preset,
         "iteration": run.iteration,
         "gaussians": int(run.params["means"].shape[0]),
-        "keyframes": baked.manifest["keyframes"],
+        "keyframes_max": int(baked.tracks.counts.max()),
+        "keyframes_mean": float(baked.tracks.counts.double().mean()),
         "test_views": len(frames),
         "resolution": [camera.width, camera.height],
-        "baked_vs_field_psnr": mean(agreement),
-        "baked_vs_field_psnr_min": min(agreement),
+        "baked_vs_field_psnr": mean(baked_agreement),
+        "baked_vs_field_psnr_min": min(baked_agreement),
         "field_test_psnr": mean(field_gt),
         "baked_test_psnr": mean(baked_gt),
         "test_psnr_change": mean(baked_gt) - mean(field_gt),
         "bytes_per_gaussian": baked.manifest["bytes_per_gaussian"],
         "splatv_vs_field_psnr": mean(splatv_agreement),
-        "splatv_motion_kept": motion_kept,
+        "splatv_vs_field_psnr_min": min(splatv_agreement),
+        "splatv_records_per_gaussian": fitted.report["records"] / int(run.params["means"].shape[0]),
+        "splatv_motion_kept": fitted.motion_kept,
         "midpoint_max_relative_error": baked.manifest["error"]["max_relative_error"],
         "gaussians_over_budget": baked.manifest["error"]["gaussians_over_budget"],
         "field_ms_per_frame": 1000 * field_seconds,

@@ -20,10 +20,12 @@ splatv (the layout of splaTV, antimatter15's player of Spacetime Gaussians' lite
         15   temporal centre c and temporal scale s, float16: opacity(t) = opacity exp(-(dt / s)^2)
         with dt = t - c, t in [0, 1]; unused slots of the last row are zero.
 
-The model is fitted here by least squares to the baked (or field) motion sampled at FIT_SAMPLES
-times: a cubic in dt for the position, a line for the (sign-aligned) quaternion, the mean of the
-scale, the SH degree-0 colour (splatv has no view dependence), c = 0.5 and a temporal scale wide
-enough that the opacity stays within 1e-6 of constant over [0, 1].
+The model is fitted to the baked (or field) motion in bake/pieces.py: one record per Gaussian
+where one cubic holds its motion (c = 0.5 and a temporal scale wide enough that the opacity stays
+within 1e-6 of constant over [0, 1]), several short-lived ones where it does not. The cameras are
+written at SPLATV_CAMERA_WIDTH pixels wide (focal lengths scaled with it, the field of view kept):
+splaTV draws with the file's focal lengths in its own window, so training-size focal lengths
+(64 px for the demo) would show the scene a few pixels tall.
 """
 
 from __future__ import annotations
@@ -38,21 +40,21 @@ import numpy as np
 import torch
 
 from liquidgs.atomic import write_atomic
-from liquidgs.bake.motion import POSITION, QUATERNION, SCALE, align_quaternion_signs, keyframe_times, pack_keyframe
 from liquidgs.errors import DataError, check_finite
 from liquidgs.gaussians.model import rgb_to_sh0
 from liquidgs.gaussians.ply import ply_data
-from liquidgs.sh import SH_C0
 from liquidgs.train.model import Deformed
 from liquidgs.train.run_folder import source_comment
 
 SPLATV_MAGIC = 0x674B
 TEXTURE_WIDTH = 4096
 WORDS_PER_GAUSSIAN = 16
-FIT_SAMPLES = 65
+SPLATV_CAMERA_WIDTH = 1024
 TEMPORAL_CENTRE = 0.5
 TEMPORAL_SCALE = 500.0
 """exp(-(0.5 / 500)^2) > 1 - 1e-6: a flat temporal opacity over the capture."""
+PLAYER_CUT = 0.02
+"""splaTV and gsplat.js skip a record whose window exp(-(dt / s)^2) is below this (their vertex shader)."""
 
 SPLATV_RECORD = np.dtype(
     [
@@ -129,59 +131,25 @@ class SplatvModel:
         m = self.motion
         means = self.position + m[:, 0:3] * dt + m[:, 3:6] * dt**2 + m[:, 6:9] * dt**3
         quats = torch.nn.functional.normalize(self.rotation + self.omega * dt, dim=-1)
-        opacity = self.opacity * torch.exp(-((dt[:, 0] / self.temporal[:, 1]) ** 2))
+        window = torch.exp(-((dt[:, 0] / self.temporal[:, 1]) ** 2))
+        opacity = self.opacity * torch.where(window < PLAYER_CUT, torch.zeros_like(window), window)
         colors = rgb_to_sh0(self.rgb)[:, None, :]
         return Deformed(means, quats, self.scale, opacity, colors)
 
 
-def fit_splatv(run) -> tuple[SplatvModel, float | None]:
-    """splaTV's model fitted to `run.at_time` (a run or a baked scene), and the share of the
-    motion it keeps: 1 - (squared position residual) / (squared position deviation from each
-    Gaussian's mean position), over the fit samples; None where no Gaussian moves (no motion to keep)."""
-    times = keyframe_times(FIT_SAMPLES)
-    states = []
-    for t in times.tolist():
-        g = run.at_time(t)
-        states.append(pack_keyframe(g.means, g.quats, g.scales).float().cpu())
-    states = align_quaternion_signs(torch.stack(states)).double()  # [S,N,10]
-    dt = (times - TEMPORAL_CENTRE)[:, None]
-    cubic = torch.cat([torch.ones_like(dt), dt, dt**2, dt**3], dim=1)  # [S,4]
-    n = states.shape[1]
-    positions = states[:, :, POSITION].reshape(FIT_SAMPLES, -1)
-    position_coef = torch.linalg.lstsq(cubic, positions).solution  # [4, N*3]
-    residual = positions - cubic @ position_coef
-    deviation = positions - positions.mean(0, keepdim=True)
-    moved = float((deviation**2).sum())
-    # The cubic's constant term alone fits the mean, so the share is within [0, 1] but for rounding.
-    kept = min(max(1.0 - float((residual**2).sum()) / moved, 0.0), 1.0) if moved > 0 else None
-    quats = states[:, :, QUATERNION].reshape(FIT_SAMPLES, -1)
-    quat_coef = torch.linalg.lstsq(cubic[:, :2], quats).solution  # [2, N*4]
-    coef = position_coef.reshape(4, n, 3)
-    activated_sh0 = run.params["sh0"].detach().cpu().reshape(n, 3).double()
-    model = SplatvModel(
-        position=coef[0].float(),
-        motion=torch.cat([coef[1], coef[2], coef[3]], dim=1).float(),
-        rotation=quat_coef[0].reshape(n, 4).float(),
-        omega=quat_coef[1].reshape(n, 4).float(),
-        scale=states[:, :, SCALE].abs().mean(0).float(),
-        rgb=(activated_sh0 * SH_C0 + 0.5).clamp(0, 1).float(),
-        opacity=torch.sigmoid(run.params["opacities"].detach().cpu().float()),
-        temporal=torch.tensor([TEMPORAL_CENTRE, TEMPORAL_SCALE]).expand(n, 2).clone(),
-    )
-    return model, kept
-
-
-def splatv_camera(camera, name: str) -> dict:
-    """A camera in 3DGS' cameras.json form, which splaTV reads."""
+def splatv_camera(camera, name: str, width: int | None = None) -> dict:
+    """A camera in 3DGS' cameras.json form, which splaTV reads; with `width`, resized to that many
+    pixels wide, the field of view kept."""
     c2w = np.linalg.inv(camera.viewmat.double().numpy())
+    factor = 1.0 if width is None else width / camera.width
     return {
         "img_name": name,
-        "width": int(camera.width),
-        "height": int(camera.height),
+        "width": round(camera.width * factor),
+        "height": round(camera.height * factor),
         "position": c2w[:3, 3].tolist(),
         "rotation": c2w[:3, :3].tolist(),
-        "fx": float(camera.K[0, 0]),
-        "fy": float(camera.K[1, 1]),
+        "fx": float(camera.K[0, 0]) * factor,
+        "fy": float(camera.K[1, 1]) * factor,
     }
 
 
@@ -206,11 +174,6 @@ def splatv_bytes(model: SplatvModel, cameras: list[dict], source: dict | None = 
     header = [chunk if source is None else {**chunk, "source": source}]
     text = json.dumps(header).encode()
     return np.array([SPLATV_MAGIC, len(text)], dtype="<u4").tobytes() + text + texture
-
-
-def write_splatv(path: Path, model: SplatvModel, cameras: list[dict], source: dict | None = None) -> Path:
-    data = splatv_bytes(model, cameras, source)
-    return write_atomic(path, lambda tmp: tmp.write_bytes(data))
 
 
 def read_splatv(path: Path) -> tuple[SplatvModel, dict]:

@@ -4,12 +4,16 @@ without evaluating any network.
     config.yml    the source run's configuration, as it was (dataset, background, backend)
     scene.json    the source run's scene print: eval and render refuse a scene that has changed
     cameras.json  the scene's cameras (data.cameras_file): render, view, web and splatv need no scene
-    scene.pt      canonical Gaussians (the run's parameters) and the keyframes [K, N, 10]
+    scene.pt      the Gaussians' opacities and SH coefficients (float16; the higher degrees 8-bit
+                  codes of each Gaussian's range), and their keyframe tracks
+                  (bake/tracks.py: as many keyframes per Gaussian as its motion needs, quantised)
     baked.json    what was baked, from which run (its source record: iteration, checkpoint hash,
                   scene print), scene.pt's hash and the measured error (BAKED_FORMAT); written
                   last, it marks the folder a baked scene
 
-A reader refuses, in one line, a folder of an older format, a scene.pt that is not the one baked,
+A folder of the format before (liquidgs-baked/2: every Gaussian on the same keyframes, float32,
+with the canonical Gaussians) is read as well. A reader refuses, in one line, a folder of an older
+format, a scene.pt that is not the one baked,
 non-finite values, and a folder whose source run is still where it was but has trained on since.
 """
 
@@ -21,7 +25,8 @@ from pathlib import Path
 
 import torch
 
-from liquidgs.bake.motion import CHANNELS, POSITION, QUATERNION, SCALE, interpolate
+from liquidgs.bake.motion import CHANNELS, POSITION, QUATERNION, SCALE
+from liquidgs.bake.tracks import Tracks, from_row_codes, unpack
 from liquidgs.cameras import Camera
 from liquidgs.data import SceneDataset
 from liquidgs.data.cameras_file import CAMERAS_FILE, dataset_from_cameras
@@ -37,7 +42,9 @@ from liquidgs.train.run_folder import CONFIG, check_scene_print, check_source, f
 
 MANIFEST = "baked.json"
 SCENE = "scene.pt"
-BAKED_FORMAT = "liquidgs-baked/2"
+BAKED_FORMAT = "liquidgs-baked/3"
+UNIFORM_FORMAT = "liquidgs-baked/2"
+"""Read: every Gaussian on the same keyframes [K, N, 10] in scene.pt's "keyframes", float32."""
 OLDER_FORMATS = ("liquidgs-baked/1",)
 """Baked before the folder carried its source, scene print and cameras: refused, to be baked again."""
 
@@ -53,8 +60,10 @@ class BakedRun:
     run_dir: Path
     config: TrainConfig
     params: torch.nn.ParameterDict
-    keyframes: torch.Tensor
-    """[K, N, 10] at motion.keyframe_times(K): position, unit quaternion, scale."""
+    """opacities, sh0, shN as baked; means, quats, scales: the state at time 0 (a baked scene keeps
+    no canonical frame: without the field it has no meaning)."""
+    tracks: Tracks
+    """Per Gaussian keyframes: position, unit quaternion, scale."""
     sh_degree: int
     iteration: int
     manifest: dict
@@ -85,9 +94,15 @@ class BakedRun:
         check_scene_print(self.run_dir, self.config.data.path)
         return load_run_dataset(self.config)
 
+    @property
+    def keyframes(self) -> torch.Tensor:
+        """[K, N, 10]: every Gaussian's track sampled at keyframe_times(K), K the most keyframes of
+        any Gaussian (a player that takes one keyframe count plays this)."""
+        return self.tracks.uniform()
+
     @torch.no_grad()
     def at_time(self, time: float) -> Deformed:
-        state = interpolate(self.keyframes, time)
+        state = self.tracks.at_time(time)
         act = self._activated
         return Deformed(state[:, POSITION], state[:, QUATERNION], state[:, SCALE], act["opacities"], act["colors"])
 
@@ -118,8 +133,8 @@ def read_manifest(folder: Path) -> dict:
             f"{path}: baked by an older liquidgs ({found}: no source record, scene print or cameras); "
             f"bake the run again ({BAKED_FORMAT})"
         )
-    if found != BAKED_FORMAT:
-        raise LiquidGSError(f"{path}: format {found!r} is not {BAKED_FORMAT!r}")
+    if found not in (BAKED_FORMAT, UNIFORM_FORMAT):
+        raise LiquidGSError(f"{path}: format {found!r} is neither {BAKED_FORMAT!r} nor {UNIFORM_FORMAT!r}")
     for key, kind in (("sh_degree", int), ("iteration", int), ("field", str), ("source", dict), ("scene_sha256", str)):
         if not isinstance(manifest.get(key), kind) or isinstance(manifest.get(key), bool):
             raise LiquidGSError(
@@ -158,18 +173,48 @@ def load_baked(folder: str | Path, device: str | torch.device = "cpu") -> BakedR
         raise LiquidGSError(f"{folder / CAMERAS_FILE}: missing; bake the run again")
     cfg = load_baked_config(folder / CONFIG)
     try:
-        payload = torch.load(scene_path, map_location=device, weights_only=True)
-        params = torch.nn.ParameterDict(
-            {k: torch.nn.Parameter(payload["params"][k].float(), requires_grad=False) for k in PARAM_KEYS}
-        )
-        keyframes = payload["keyframes"].float()
-    except Exception as err:  # noqa: BLE001 - any unpickling failure is a damaged or unsafe file
+        payload = torch.load(scene_path, map_location="cpu", weights_only=True)
+        params, tracks, bad = scene_payload(payload, manifest["format"])
+    except Exception as err:  # noqa: BLE001 - any unpickling or layout failure is a damaged or unsafe file
         first = (str(err).strip().splitlines() or [""])[0][:200]
         raise LiquidGSError(f"{scene_path}: unreadable baked scene ({type(err).__name__}: {first})") from None
-    n = params["means"].shape[0]
-    if keyframes.ndim != 3 or keyframes.shape[1:] != (n, CHANNELS) or keyframes.shape[0] < 1:
-        raise LiquidGSError(f"{scene_path}: keyframes {tuple(keyframes.shape)} do not fit {n} Gaussians")
-    bad = int((~torch.isfinite(keyframes)).sum()) + sum(int((~torch.isfinite(p)).sum()) for p in params.values())
     if bad:
         raise LiquidGSError(f"{scene_path}: {bad} non-finite values (NaN or infinity); bake the run again")
-    return BakedRun(folder, cfg, params, keyframes, manifest["sh_degree"], manifest["iteration"], manifest)
+    tracks = Tracks(tracks.counts.to(device), [(i.to(device), k.to(device)) for i, k in tracks.groups])
+    state = tracks.at_time(0.0)
+    if manifest["format"] == BAKED_FORMAT:
+        scales = torch.log(state[:, SCALE].abs().clamp_min(1e-12))
+        params.update(means=state[:, POSITION], quats=state[:, QUATERNION], scales=scales)
+    params = torch.nn.ParameterDict(
+        {k: torch.nn.Parameter(params[k].float().to(device), requires_grad=False) for k in PARAM_KEYS}
+    )
+    return BakedRun(folder, cfg, params, tracks, manifest["sh_degree"], manifest["iteration"], manifest)
+
+
+def scene_payload(payload: dict, found: str) -> tuple[dict[str, torch.Tensor], Tracks, int]:
+    """scene.pt's Gaussians, tracks and how many of its stored numbers are NaN or infinite;
+    ValueError or KeyError where its layout is not the format's."""
+    if found == UNIFORM_FORMAT:
+        params = {k: payload["params"][k].float() for k in PARAM_KEYS}
+        keyframes = payload["keyframes"].float()
+        n = params["means"].shape[0]
+        if keyframes.ndim != 3 or keyframes.shape[1:] != (n, CHANNELS) or keyframes.shape[0] < 1:
+            raise ValueError(f"keyframes {tuple(keyframes.shape)} do not fit {n} Gaussians")
+        return params, Tracks.from_keyframes(keyframes), non_finite([*params.values(), keyframes])
+    params = {k: payload["params"][k].float() for k in STORED_PARAMS}
+    params["shN"] = from_row_codes(payload["sh_rest"])
+    n = params["opacities"].shape[0]
+    if any(value.shape[0] != n for value in params.values()):
+        raise ValueError(f"opacities and SH coefficients of {n} Gaussians disagree in number")
+    stored = payload["tracks"]
+    return params, unpack(stored, n), non_finite([*params.values(), stored["low"], stored["span"]])
+
+
+def non_finite(tensors: list[torch.Tensor]) -> int:
+    return sum(int((~torch.isfinite(t.float())).sum()) for t in tensors)
+
+
+STORED_PARAMS = ("opacities", "sh0")
+"""What a baked scene keeps of the run's parameters in float16; the higher SH coefficients (shN)
+are 8-bit codes of each Gaussian's range (tracks.row_codes: on the demo's HexPlane run and the cat
+clip's CfC run no test view moved by 0.1 dB), its tracks hold the rest."""

@@ -1,12 +1,15 @@
 """`liquidgs bake --run DIR [--out BAKED]`: distil a finished run's deformation field into explicit
 per-Gaussian motion that renders without the network.
 
-The field is sampled at uniform keyframe times over the capture's time range; between them each
-Gaussian's position, rotation and scale follow a Catmull-Rom spline (rotation renormalised).
-Keyframes double (9, 17, 33, ...) until every visible Gaussian (opacity >= 1/255) stays within
---tolerance half-way between keyframes, measured against the field: position and scale error as a
-fraction of the Gaussian's largest axis, rotation error in radians. Past --max-keyframes the scene
-is baked anyway, with a warning naming the Gaussians and times over budget (all in baked.json).
+Each Gaussian gets as many keyframes as its motion needs (one if it does not move; else 2, 3, 5,
+9, ... up to --max-keyframes, from --min-keyframes doubled), at uniform times over the capture's
+time range; between them its position, rotation and scale follow a Catmull-Rom spline (rotation
+renormalised). Every visible Gaussian (opacity >= 1/255) must stay within --tolerance at every
+sample time (the keyframe times of the most keyframes and the midpoints between them), measured
+against the field with the keyframes as stored (quantised to 8 or 16 bits of their range):
+position and scale error as a fraction of the Gaussian's largest axis, rotation error in radians.
+Past --max-keyframes the scene is baked anyway, with a warning naming the Gaussians and times over
+budget (all in baked.json).
 
 BAKED (default DIR/baked) is read by `render`, `eval`, `view` and `export` in place of a run
 folder. It is built in a hidden folder beside BAKED and renamed into place when complete. It
@@ -20,17 +23,18 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+import torch
 from rich.console import Console
 
 from liquidgs.atomic import build_atomically, save_torch_atomic, write_json_atomic, write_text_atomic
-from liquidgs.bake.distil import BakeSettings, check_finished, describe_over_budget, distil, most_samples
+from liquidgs.bake.distil import BakeSettings, check_finished, describe_over_budget, distil, field_samples
 from liquidgs.bake.motion import CHANNELS
-from liquidgs.bake.scene import BAKED_FORMAT, MANIFEST, SCENE, is_baked
+from liquidgs.bake.scene import BAKED_FORMAT, MANIFEST, SCENE, STORED_PARAMS, is_baked
+from liquidgs.bake.tracks import row_codes
 from liquidgs.commands.progress import progress_for
 from liquidgs.data.cameras_file import CAMERAS_FILE, cameras_record
 from liquidgs.data.capture import refuse_taken
 from liquidgs.errors import ConfigError, LiquidGSError, check_finite
-from liquidgs.gaussians import PARAM_KEYS
 from liquidgs.settings import parse_flags
 from liquidgs.train.run import load_run
 from liquidgs.train.run_folder import CONFIG, SCENE_PRINT, file_sha256
@@ -47,11 +51,15 @@ class BakeArgs:
     out: Path | None = None
     """Default: DIR/baked."""
     tolerance: float = BakeSettings.tolerance
-    """Error budget half-way between keyframes (fraction of the Gaussian's size; radians)."""
+    """Error budget at every sample time (fraction of the Gaussian's size; radians)."""
     min_keyframes: int = BakeSettings.min_keyframes
-    """Keyframes to start from (at least 2)."""
+    """The fewest keyframes of a Gaussian that moves (at least 2)."""
     max_keyframes: int = BakeSettings.max_keyframes
     """Keyframes the doubling stops at, at most 1,025 (MAX_KEYFRAMES)."""
+    pixel_floor: float = BakeSettings.pixel_floor
+    """In the budget a Gaussian's size counts as at least this many pixel widths (in the scene's camera
+    that sees it finest): an error within a fraction of a pixel cannot show at the scene's resolution
+    (0: the Gaussian's own size only)."""
     device: str = "auto"
     """auto (CUDA where torch sees a GPU, else the CPU), cpu, cuda or cuda:N."""
 
@@ -59,6 +67,8 @@ class BakeArgs:
 def check_args(args: BakeArgs) -> Path:
     if not 0.0 < args.tolerance < 1.0:
         raise ConfigError(f"--tolerance must be in (0, 1), got {args.tolerance}")
+    if not 0.0 <= args.pixel_floor <= 100.0:
+        raise ConfigError(f"--pixel-floor must be in [0, 100], got {args.pixel_floor}")
     if not 2 <= args.min_keyframes <= args.max_keyframes <= MAX_KEYFRAMES:
         raise ConfigError(
             f"--min-keyframes and --max-keyframes must satisfy 2 <= min <= max <= {MAX_KEYFRAMES}, "
@@ -92,27 +102,29 @@ def bake(args: BakeArgs, console: Console | None = None) -> dict:
     out = check_args(args)
     run = load_run(args.run, args.device)
     check_finished(run, "bake")
-    cameras = cameras_record(run.scene())  # the scene checked against the run's print first
-    settings = BakeSettings(args.tolerance, args.min_keyframes, args.max_keyframes)
+    scene = run.scene()  # checked against the run's print first
+    cameras = cameras_record(scene)
+    settings = BakeSettings(args.tolerance, args.min_keyframes, args.max_keyframes, args.pixel_floor)
     n = run.params["means"].shape[0]
-    samples = [0]
-
-    def sampled(keyframes: int) -> None:
-        samples[0] += 1
-        progress.update(task, completed=samples[0], keyframes=keyframes)
-
-    most = most_samples(settings)
+    samples = field_samples(settings)
     run.at_time(0.0)  # a diverged run: its one line before any progress line
     with make_progress(console or Console(quiet=True)) as progress:
-        task = progress.add_task("bake", total=most, keyframes=settings.min_keyframes, gaussians=n)
-        distilled = distil(run, settings, sampled)
-        if samples[0] < most:  # the budget met before the most keyframes: done at the samples taken
-            progress.update(task, total=samples[0], completed=samples[0])
+        task = progress.add_task("bake", total=samples, keyframes=settings.ladder()[-1], gaussians=n)
+        distilled = distil(run, settings, [frame.camera for frame in (*scene.train, *scene.test)],
+                           lambda: progress.update(task, advance=1))  # fmt: skip
+    params = {k: run.params[k].detach().cpu() for k in STORED_PARAMS}
+    check_finite(
+        args.run, "the Gaussians and their keyframes", [*params.values(), run.params["shN"], distilled.stored["low"]]
+    )
+    sh_rest = row_codes(run.params["shN"])
     payload = {
-        "params": {k: run.params[k].detach().cpu().contiguous() for k in PARAM_KEYS},
-        "keyframes": distilled.keyframes.contiguous(),
+        "params": {k: v.to(torch.float16).contiguous() for k, v in params.items()},
+        "sh_rest": sh_rest,
+        "tracks": distilled.stored,
     }
-    check_finite(args.run, "the Gaussians and their keyframes", [*payload["params"].values(), payload["keyframes"]])
+    # float16 overflows to infinity
+    as_stored = [*payload["params"].values(), distilled.stored["span"], sh_rest["low"], sh_rest["span"]]
+    check_finite(args.run, "the Gaussians and their keyframes as stored", as_stored)
     manifest = {
         "format": BAKED_FORMAT,
         "source": run.source(),
@@ -120,10 +132,13 @@ def bake(args: BakeArgs, console: Console | None = None) -> dict:
         "iteration": run.iteration,
         "sh_degree": run.sh_degree,
         "gaussians": n,
-        "keyframes": distilled.keyframes.shape[0],
-        "keyframe_times": "uniform over [0, 1], the capture's normalised time range",
+        "keyframes": distilled.report["max_keyframes"],
+        "mean_keyframes": distilled.report["mean_keyframes"],
+        "keyframe_times": "per Gaussian, uniform over [0, 1] (the capture's normalised time range)",
         "interpolation": "Catmull-Rom per channel (position, wxyz quaternion renormalised, scale)",
         "channels": CHANNELS,
+        "storage": "bake/tracks.py: per Gaussian and channel, 8- or 16-bit codes of its range; opacity and "
+        "SH degree 0 float16, higher SH 8-bit codes of each Gaussian's range",
         "error": distilled.report,
     }
 
@@ -152,8 +167,8 @@ def main(argv: list[str]) -> int:
     record = bake(args, console)
     error = record["error"]
     console.print(
-        f"baked {record['gaussians']:,} Gaussians x {record['keyframes']} keyframes "
-        f"({record['bytes_per_gaussian']:.0f} bytes per Gaussian); midpoint error: max "
+        f"baked {record['gaussians']:,} Gaussians, {record['mean_keyframes']:.1f} keyframes each on average "
+        f"(at most {record['keyframes']}; {record['bytes_per_gaussian']:.0f} bytes per Gaussian); error: max "
         f"{error['max_relative_error']:.3g} of a Gaussian's size, max position {error['max_position_error']:.3g} "
         f"scene units -> {record['out']}",
         highlight=False,

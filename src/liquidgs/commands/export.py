@@ -10,8 +10,9 @@ of what it holds (the run's checkpoint iteration and hash, the scene print): in 
 comment, field.pt's "source", the splatv header, the web folder's scene.json.
 
 --format plyseq writes only sequence.zip, the --sequence N frames as one .zip of PLYs (Brush
-plays it); --format splatv writes only scene.splatv, splaTV's per-Gaussian cubic motion fitted
-to the run (see liquidgs.bake.formats), with the share of the motion it keeps printed;
+plays it); --format splatv writes only scene.splatv, splaTV's motion model fitted to the run
+(see liquidgs.bake.pieces: a cubic per Gaussian, or several short-lived pieces where its motion
+needs them), with the share of the motion it keeps and its PSNR against the run printed;
 --format web writes OUT/web, a static page with its WebGL2 player and the baked scene (a run is
 baked on the way with the default budget) that plays offline from any static file server;
 --format html writes OUT/scene.html, the same page with the scene inside it, one file that opens
@@ -28,20 +29,23 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
+import torch
 from rich.console import Console
 from rich.progress import track
 
-from liquidgs.atomic import build_atomically, save_torch_atomic
+from liquidgs.atomic import build_atomically, save_torch_atomic, write_atomic
 from liquidgs.bake.distil import check_finished
 from liquidgs.bake.formats import (
+    SPLATV_CAMERA_WIDTH,
     check_frames_finite,
-    fit_splatv,
     frame_params,
+    parse_splatv,
     sequence_times,
+    splatv_bytes,
     splatv_camera,
     write_plyseq,
-    write_splatv,
 )
+from liquidgs.bake.pieces import agreement, fit_splatv
 from liquidgs.bake.spz import write_spz
 from liquidgs.bake.web import write_web, write_web_page
 from liquidgs.errors import ConfigError, check_finite
@@ -157,19 +161,39 @@ def export_sequence(run, folder: Path, frames: int, comments: tuple[str, ...], c
 
 def export_splatv(run, path: Path, console: Console | None) -> Path:
     """splaTV's motion model fitted to the run (or baked scene); the dataset's cameras go along,
-    test views first (the player starts at the first)."""
-    model, kept = fit_splatv(run)
-    check_finite(run.run_dir, "the fitted splatv model", vars(model))
+    test views first (the player starts at the first), resized for a player's window. Prints the
+    pieces, the share of the motion kept and the PSNR of the file against the run on its test views."""
     dataset = run.scene()
     frames = [*dataset.test, *dataset.train]
-    written = write_splatv(path, model, [splatv_camera(f.camera, f.name) for f in frames], run.source())
+    fitted = fit_splatv(run, [f.camera for f in frames])
+    check_finite(run.run_dir, "the fitted splatv model", vars(fitted.model))
+    cameras = [splatv_camera(f.camera, f.name, SPLATV_CAMERA_WIDTH) for f in frames]
+    data = splatv_bytes(fitted.model, cameras, run.source())
+    background = torch.tensor(dataset.background, dtype=torch.float32)
+    as_stored, _ = parse_splatv(data, path)
+    scores = agreement(run, as_stored, dataset.test or dataset.train[:AGREEMENT_VIEWS], background)
+    written = write_atomic(path, lambda tmp: tmp.write_bytes(data))
     if console is not None:
-        console.print(
-            "splatv: the run has no motion (no Gaussian moves), so there is none to keep"
+        report = fitted.report
+        n = run.params["means"].shape[0]
+        pieces = ", ".join(f"{count:,} x {p}" for p, count in report["pieces"].items())
+        kept = fitted.motion_kept
+        kept = (
+            "the run has no motion (no Gaussian moves), so there is none to keep"
             if kept is None
-            else f"splatv: its cubic motion keeps {100 * kept:.2f}% of the field's motion (position variance)"
+            else f"it keeps {100 * kept:.1f}% of the motion"
+        )
+        against = "the field" if run.field is not None else "the baked scene"
+        console.print(
+            f"splatv: {kept}; {report['records']:,} records for {n:,} Gaussians (Gaussians x pieces: {pieces}); "
+            f"{sum(scores) / len(scores):.1f} dB against {against} on {len(scores)} views (worst {min(scores):.1f})",
+            highlight=False,
         )
     return written
+
+
+AGREEMENT_VIEWS = 5
+"""Views the splatv file is scored on where the scene has no test views: the first training views."""
 
 
 def main(argv: list[str]) -> int:

@@ -1,0 +1,220 @@
+"""splaTV's model fitted to a motion, with as many temporal pieces per Gaussian as its motion needs.
+
+A splatv record holds one cubic of the position and one line of the rotation in dt = t - c, and
+an opacity window exp(-(dt / s)^2) (bake/formats.py). One record per Gaussian over the whole
+capture (c = 0.5, s flat) keeps a slow motion; a swing needs more. A Gaussian of P > 1 pieces
+becomes P records with centres c_j = j / (P - 1) and a common temporal scale s = WINDOW / (P - 1),
+each fitted by least squares weighted by its own window to the motion sampled at SAMPLES times,
+so that wherever a piece is visible its cubic follows the motion there. The players skip a record
+whose window is under PLAYER_CUT; overlapping pieces composite as splats do, so each piece's
+opacity is chosen so that the pieces together cover, averaged over the capture, what the
+Gaussian covered alone.
+
+Pieces are chosen per Gaussian on the ladder 1, 2, 3, 5, 9, ... MAX_PIECES: the first whose every
+visible piece stays within the budget at every sample time, position error as a fraction of the
+Gaussian's largest axis (counted as at least PIXEL_FLOOR pixel widths in the camera that sees it
+finest, as the bake counts it), rotation error in radians.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from liquidgs.bake.distil import pixel_widths, sample_field
+from liquidgs.bake.formats import PLAYER_CUT, TEMPORAL_CENTRE, TEMPORAL_SCALE, SplatvModel
+from liquidgs.bake.motion import POSITION, QUATERNION, SCALE, align_quaternion_signs, count_ladder, keyframe_times
+from liquidgs.eval.metrics import psnr
+from liquidgs.sh import SH_C0, eval_sh
+from liquidgs.train.model import render_frame
+
+SAMPLES = 129
+WINDOW = 0.7
+"""Temporal scale in units of the spacing between centres. Overlapping copies of one Gaussian
+composite as two splats, not as one (1 - (1 - a g)(1 - b g) is not (a + b) g across the splat's
+profile g), so the overlap costs; too little overlap leaves the Gaussian faint between centres.
+On a swinging sheet of opaque Gaussians (tests/test_splatv_player.py) liquidgs' render of the file
+scored 26.3-27.4 dB against the motion at 1.0 (exp(-1) at the next centre), 34.0-37.3 at 0.7,
+29.7-33.4 at 0.55, 17.3-36.6 at 0.4."""
+TOLERANCE = 0.5
+PIXEL_FLOOR = 4.0
+MAX_PIECES = 9
+"""With TOLERANCE, what keeps a file within 4x the bytes of one record per Gaussian on the runs
+measured (docs/results/baked.md): the demo's HexPlane 3.85 records per Gaussian at 9 (32.9 dB
+against the field), 4.48 at 17 (33.8 dB)."""
+
+
+@dataclass
+class Fitted:
+    model: SplatvModel
+    motion_kept: float | None
+    """1 - (squared position residual) / (squared position deviation from each Gaussian's mean
+    position) of the pieces' opacity-weighted position, over the samples; None where no Gaussian moves."""
+    report: dict
+
+
+def windows(pieces: int, times: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, float]:
+    """Centres [P], the windows [S, P] at `times` as the players show them (0 under PLAYER_CUT), the scale."""
+    if pieces == 1:
+        centres, scale = torch.tensor([TEMPORAL_CENTRE], dtype=torch.float64), TEMPORAL_SCALE
+    else:
+        centres, scale = torch.linspace(0.0, 1.0, pieces, dtype=torch.float64), WINDOW / (pieces - 1)
+    window = torch.exp(-(((times[:, None] - centres[None, :]) / scale) ** 2))
+    return centres, torch.where(window < PLAYER_CUT, torch.zeros_like(window), window), scale
+
+
+def weighted_fit(dt: torch.Tensor, weight: torch.Tensor, values: torch.Tensor, degree: int) -> torch.Tensor:
+    """Coefficients [degree + 1, M] of the polynomial in dt [S] fitting values [S, M] by least
+    squares weighted by weight [S]."""
+    basis = torch.stack([dt**k for k in range(degree + 1)], dim=1)
+    root = weight.sqrt()[:, None]
+    return torch.linalg.lstsq(root * basis, root * values).solution
+
+
+def float16_fit(dt: torch.Tensor, weight: torch.Tensor, values: torch.Tensor, degree: int) -> torch.Tensor:
+    """weighted_fit with the coefficients the file stores in float16 (all but a position's constant
+    term) rounded as it rounds them, highest first, each lower one refitted to what is left: a
+    short piece's cubic term can be large, and its rounding alone would move the Gaussian."""
+    coefficients = weighted_fit(dt, weight, values, degree)
+    rest = values.clone()
+    for k in range(degree, 0, -1):
+        coefficients[k] = coefficients[k].to(torch.float16).to(coefficients.dtype)
+        rest = rest - dt[:, None] ** k * coefficients[k]
+        coefficients[:k] = weighted_fit(dt, weight, rest, k - 1)
+    return coefficients
+
+
+def piece_errors(states, centres, window, floor):
+    """Per piece: position [4, n, 3] and rotation [2, n, 4] coefficients, and per Gaussian the
+    largest relative error [n] of any piece at any sample time it is visible."""
+    times = keyframe_times(states.shape[0])
+    n = states.shape[1]
+    size = torch.maximum(states[..., SCALE].abs().amax(-1), floor).clamp_min(1e-12)
+    worst = torch.zeros(n, dtype=torch.float64)
+    pieces = []
+    for j, centre in enumerate(centres.tolist()):
+        dt = times - centre
+        weight = window[:, j]
+        positions = states[..., POSITION].reshape(len(times), -1)
+        position = float16_fit(dt, weight, positions, 3)
+        rotation = float16_fit(dt, weight, states[..., QUATERNION].reshape(len(times), -1), 1)
+        rotation[0] = rotation[0].to(torch.float16).to(rotation.dtype)  # the file's rotation is float16 too
+        basis = torch.stack([dt**k for k in range(4)], dim=1)
+        fitted = (basis @ position).reshape(len(times), n, 3)
+        quats = torch.nn.functional.normalize((basis[:, :2] @ rotation).reshape(len(times), n, 4), dim=-1)
+        error = (fitted - states[..., POSITION]).norm(dim=-1) / size
+        angle = 2 * torch.acos((quats * states[..., QUATERNION]).sum(-1).abs().clamp(max=1.0))
+        # A piece is judged where it shows, by how much it shows: at a tenth of its opacity a stray
+        # copy shows a tenth as much.
+        worst = torch.maximum(worst, (weight[:, None] * torch.maximum(error, angle)).amax(0))
+        pieces.append((position.reshape(4, n, 3), rotation.reshape(2, n, 4)))
+    return pieces, worst
+
+
+def piece_opacity(opacity: torch.Tensor, window: torch.Tensor) -> torch.Tensor:
+    """[n, P]: the opacity of each of a Gaussian's pieces. The windows' least-squares partition of
+    one, m [P] (sum_j m_j w_j(t) ~ 1: the end pieces, with one neighbour, weigh more), scaled by
+    lam per Gaussian so that 1 - prod_j (1 - min(lam m_j, 1) w_j(t)), averaged over the sample
+    times, is the Gaussian's opacity (bisection)."""
+    ones = torch.ones(window.shape[0], 1, dtype=window.dtype)
+    share = torch.linalg.lstsq(window, ones).solution.flatten().clamp_min(1e-3)
+    low, high = torch.zeros_like(opacity), torch.full_like(opacity, 1.0 / float(share.min()))
+    for _ in range(40):
+        middle = (low + high) / 2
+        pieces = (middle[:, None] * share[None]).clamp(max=1.0)
+        cover = 1 - torch.prod(1 - pieces[:, None, :] * window[None], dim=-1)
+        below = cover.mean(-1) < opacity
+        low, high = torch.where(below, middle, low), torch.where(below, high, middle)
+    return (((low + high) / 2)[:, None] * share[None]).clamp(max=1.0)
+
+
+def seen_colour(run, positions: torch.Tensor, cameras) -> torch.Tensor:
+    """[n, 3] in [0, 1]: the colour each Gaussian shows, averaged over the cameras' views of it
+    (splatv holds one colour, no view dependence), or its SH degree-0 colour without cameras."""
+    if not len(cameras):
+        return (run.params["sh0"].detach().cpu().double()[:, 0] * SH_C0 + 0.5).clamp(0, 1)
+    sh = torch.cat([run.params["sh0"], run.params["shN"]], dim=1).detach().cpu().double()
+    total = torch.zeros(positions.shape[0], 3, dtype=torch.float64)
+    for camera in cameras:
+        centre = torch.linalg.inv(camera.viewmat.double().cpu())[:3, 3]
+        total += (eval_sh(run.sh_degree, sh, positions - centre) + 0.5).clamp(0, 1)
+    return total / len(cameras)
+
+
+def fit_splatv(run, cameras=(), tolerance: float = TOLERANCE, most: int = MAX_PIECES) -> Fitted:
+    times = keyframe_times(SAMPLES)
+    states = align_quaternion_signs(sample_field(run, times).cpu()).double()
+    n = states.shape[1]
+    floor = (
+        PIXEL_FLOOR * pixel_widths(cameras, states[SAMPLES // 2, :, POSITION].float()).clamp(max=1e30).double()
+        if len(cameras)
+        else torch.zeros(n, dtype=torch.float64)
+    )
+    opacity = torch.sigmoid(run.params["opacities"].detach().cpu().double()).flatten()
+    rgb = seen_colour(run, states[SAMPLES // 2, :, POSITION], cameras)
+    counts = torch.full((n,), 0, dtype=torch.long)
+    steps = count_ladder(2, most)
+    records, blended, errors = [], torch.zeros(SAMPLES, n, 3, dtype=torch.float64), torch.zeros(n, dtype=torch.float64)
+    for pieces in steps:
+        index = (counts == 0).nonzero().flatten()
+        if not len(index):
+            break
+        centres, window, scale = windows(pieces, times)
+        part = states[:, index]
+        fitted, worst = piece_errors(part, centres, window, floor[index])
+        settled = worst <= tolerance if pieces != steps[-1] else torch.ones_like(worst, dtype=torch.bool)
+        chosen = index[settled]
+        counts[chosen] = pieces
+        errors[chosen] = worst[settled]
+        share = piece_opacity(opacity[chosen], window) if pieces > 1 else opacity[chosen][:, None]
+        weights = torch.zeros(SAMPLES, len(chosen), dtype=torch.float64)
+        for j, (position, rotation) in enumerate(fitted):
+            dt = times - centres[j]
+            basis = torch.stack([dt**k for k in range(4)], dim=1)
+            path = (basis @ position[:, settled].reshape(4, -1)).reshape(SAMPLES, -1, 3)
+            w = window[:, j : j + 1] * share[None, :, j]
+            blended[:, chosen] += w[..., None] * path
+            weights += w
+            records.append(
+                SplatvModel(
+                    position=position[0, settled].float(),
+                    motion=torch.cat([position[1, settled], position[2, settled], position[3, settled]], 1).float(),
+                    rotation=rotation[0, settled].float(),
+                    omega=rotation[1, settled].float(),
+                    scale=(
+                        (window[:, j : j + 1, None] * part[:, settled][..., SCALE].abs()).sum(0)
+                        / window[:, j].sum().clamp_min(1e-12)
+                    ).float(),
+                    rgb=rgb[chosen].float(),
+                    opacity=share[:, j].float(),
+                    temporal=torch.tensor([float(centres[j]), scale]).expand(len(chosen), 2).clone(),
+                )
+            )
+        blended[:, chosen] /= weights.clamp_min(1e-12)[..., None]
+    model = SplatvModel(*(torch.cat([getattr(r, f) for r in records]) for f in SplatvModel.__dataclass_fields__))
+    deviation = states[..., POSITION] - states[..., POSITION].mean(0, keepdim=True)
+    moved = float((deviation**2).sum())
+    residual = float(((blended - states[..., POSITION]) ** 2).sum())
+    kept = min(max(1.0 - residual / moved, 0.0), 1.0) if moved > 0 else None
+    report = {
+        "tolerance": tolerance,
+        "pieces": {str(p): int((counts == p).sum()) for p in steps if int((counts == p).sum())},
+        "records": int(model.position.shape[0]),
+        "max_relative_error": float(errors.max()) if n else 0.0,
+        "gaussians_over_budget": int((errors > tolerance).sum()),
+    }
+    return Fitted(model, kept, report)
+
+
+@torch.no_grad()
+def agreement(run, model: SplatvModel, frames, background: torch.Tensor) -> list[float]:
+    """PSNR (dB) of the splatv model's render against `run`'s (its field, or a baked scene) at each
+    frame's camera and time; the model at SH degree 0, as the players show it."""
+    scores = []
+    for frame in frames:
+        truth = run.render(frame.camera, frame.time, background).rgb.clamp(0, 1)
+        g = model.at_time(frame.time)
+        shown = render_frame(g, frame.camera, sh_degree=0, background=background, backend=run.config.backend)
+        scores.append(float(psnr(shown.rgb.clamp(0, 1), truth)))
+    return scores
