@@ -93,8 +93,10 @@ def test_densification_gives_clones_and_split_children_their_parents_label():
     assert state[DYNAMIC].tolist() == [True, False, True, False, True, False, True, False]
 
 
+# The puppet's masks hold its whole swing in most frames: at the default vote (0.05, for slow real
+# subjects) every Gaussian of this small scene is dynamic; at 0.5 about half are.
 SPLIT_RUN = tiny_flags({"iterations": 30, "checkpoint_every": 10, "eval.start": 30, "cameras.align_steps": 5,
-                        "split.apply": True, "split.every": 5})  # fmt: skip
+                        "split.apply": True, "split.every": 5, "split.vote": 0.5})  # fmt: skip
 
 
 def test_the_field_never_moves_a_static_gaussian_and_sees_only_the_dynamic_ones(capture, tmp_path):
