@@ -27,6 +27,7 @@ from PIL import Image
 from liquidgs.data import DataConfig, check_dataset, load_dataset
 from liquidgs.data.capture import CaptureSettings, capture_scene
 from liquidgs.data.colmap import SolveOptions
+from liquidgs.data.pose_accuracy import similarity
 from liquidgs.data.synthetic import render_rgba
 from liquidgs.data.video import extract_video_frames
 from liquidgs.media import write_video
@@ -111,17 +112,6 @@ def distorted_scenes(pycolmap, tmp_path_factory):
         )  # fmt: skip
         assert code == 0, stderr
     return video, scenes, stdouts
-
-
-def similarity(source: np.ndarray, target: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
-    """(s, R, t) minimising |s R source + t - target|^2 (Umeyama 1991)."""
-    mean_s, mean_t = source.mean(0), target.mean(0)
-    a, b = source - mean_s, target - mean_t
-    u, singular, vt = np.linalg.svd(b.T @ a / len(source))
-    d = np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))])
-    rotation = u @ d @ vt
-    scale = float(np.trace(np.diag(singular) @ d) / a.var(0).sum())
-    return scale, rotation, mean_t - scale * rotation @ mean_s
 
 
 def cameras(scene: Path) -> tuple[list[str], np.ndarray, np.ndarray]:
