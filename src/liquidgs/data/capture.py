@@ -14,7 +14,6 @@ from __future__ import annotations
 import copy
 import os
 import shutil
-import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -42,6 +41,7 @@ from liquidgs.data.nerfies import (
     camera_path,
     rgb_folder,
 )
+from liquidgs.data.stage_times import StageTimes
 from liquidgs.data.validate import open_image
 from liquidgs.data.video import (
     SIDE_MULTIPLE,
@@ -113,9 +113,13 @@ class CaptureSummary:
     """The matcher of the attempt whose model is used."""
     masked: bool
     camera_solve: dict
-    """Which attempt's model is used ("attempt") and every attempt made ("attempts": name, matcher,
-    changes, result: "used" or the refusal, seconds)."""
+    """Which attempt's model is used ("attempt"), every attempt made ("attempts": name, matcher, mapper,
+    changes, result: "used", "usable" or the refusal, warnings, seconds) and the used model's
+    plausibility warnings ("warnings")."""
     seconds: dict[str, float]
+    """Wall seconds per stage: extraction, features, matching, mapping, undistortion, writing, flow."""
+    cpu_seconds: dict[str, float]
+    """CPU seconds per stage (every thread, and ffmpeg's): the work, where wall time includes waiting."""
 
 
 def refuse_taken(out: Path) -> None:
@@ -133,52 +137,55 @@ def capture_scene(source: Path, out: Path, settings: CaptureSettings, log: Log, 
         raise DataError(settings.mask_dir, "--mask-dynamic: mask folder not found")
 
     def build(building: Path) -> CaptureSummary:
-        summary = _build(source, building, settings, log, video=video)
+        times = StageTimes()
+        summary = _build(source, building, settings, log, times, video=video)
         summary.out = str(out)
         if settings.flow:
-            flow = compute_scene_flow(building, training_downscale(summary.image_size), log)
-            summary.seconds["flow"] = flow.seconds
+            with times.stage("flow"):
+                compute_scene_flow(building, training_downscale(summary.image_size), log)
+        recorded = times.record()
+        summary.seconds, summary.cpu_seconds = recorded["wall"], recorded["cpu"]
+        log(f"time: {times.line()}")
         write_json_atomic(building / CAPTURE_FILE, asdict(summary))
         return summary
 
     return build_atomically(out, build)
 
 
-def _build(source: Path, scene: Path, settings: CaptureSettings, log: Log, *, video: bool) -> CaptureSummary:
-    seconds: dict[str, float] = {}
+def _build(
+    source: Path, scene: Path, settings: CaptureSettings, log: Log, times: StageTimes, *, video: bool
+) -> CaptureSummary:
     work = scene / ".work"
     frames_dir = work / "frames"
     frames_dir.mkdir(parents=True)
 
-    started = time.perf_counter()
-    if video:
-        frames = extract_video_frames(
-            source, frames_dir, fps=settings.fps, frames=settings.frames, max_size=settings.max_size, log=log
-        )
-    else:
-        frames = collect_image_frames(source, frames_dir, max_size=settings.max_size, log=log)
+    with times.stage("extraction"):
+        if video:
+            frames = extract_video_frames(
+                source, frames_dir, fps=settings.fps, frames=settings.frames, max_size=settings.max_size, log=log
+            )
+        else:
+            frames = collect_image_frames(source, frames_dir, max_size=settings.max_size, log=log)
     if len(frames) < 2:
         raise DataError(source, f"gives {len(frames)} frame; a scene needs at least 2")
-    seconds["extraction"] = time.perf_counter() - started
 
     mask_dir = None
     if settings.mask_dir is not None:
         mask_dir = work / "masks"
         _colmap_masks(settings.mask_dir, frames, mask_dir, log)
 
-    started = time.perf_counter()
     names = [f"{frame.id}.png" for frame in frames]
     solved = solve_cameras(frames_dir, names, work, settings.solve, log, mask_dir=mask_dir)
-    seconds["colmap"] = time.perf_counter() - started
+    times.merge(solved.times)
+    for warning in solved.warnings:
+        log(f"warning: {warning}")
 
-    started = time.perf_counter()
-    summary = _write_scene(scene, frames, frames_dir, solved.model, settings, log)
+    summary = _write_scene(scene, frames, frames_dir, solved.model, settings, log, times)
     summary.matcher = solved.matcher
-    summary.camera_solve = {"attempt": solved.attempt, "attempts": solved.attempts}
-    shutil.rmtree(work)
-    seconds["writing"] = time.perf_counter() - started
+    summary.camera_solve = {"attempt": solved.attempt, "attempts": solved.attempts, "warnings": solved.warnings}
+    with times.stage("writing"):
+        shutil.rmtree(work)
     summary.source = str(source)
-    summary.seconds = {stage: round(value, 2) for stage, value in seconds.items()}
     return summary
 
 
@@ -220,7 +227,15 @@ def _write_scene(
     model,
     settings: CaptureSettings,
     log: Log,
+    times: StageTimes,
 ) -> CaptureSummary:
+    """The scene's files from the model; the lens's undistortion (camera and image warps) is timed as
+    "undistortion", the rest as "writing"."""
+    with times.stage("writing"):
+        return _write_files(scene, frames, frames_dir, model, settings, log, times)
+
+
+def _write_files(scene, frames, frames_dir, model, settings, log, times: StageTimes) -> CaptureSummary:
     by_name = {image.name: image for image in model.images.values() if image.has_pose}
     registered = [frame for frame in frames if f"{frame.id}.png" in by_name]
     dropped = [{"id": frame.id, "source": frame.source} for frame in frames if f"{frame.id}.png" not in by_name]
@@ -234,7 +249,8 @@ def _write_scene(
     lens = {camera_id: copy.copy(model.cameras[camera_id]) for camera_id in sorted(used)}
     undistort: dict[int, Undistorter] = {}
     if not settings.keep_distortion:
-        undistort = dict(zip(lens, undistorters(list(lens.values()), SIDE_MULTIPLE)))
+        with times.stage("undistortion"):
+            undistort = dict(zip(lens, undistorters(list(lens.values()), SIDE_MULTIPLE)))
         for camera_id, undistorter in undistort.items():
             before, after = describe_camera(lens[camera_id]), describe_camera(undistorter.pinhole)
             log(f"undistortion: {before} -> {after}, cropped to valid pixels")
@@ -252,7 +268,11 @@ def _write_scene(
         write_json_atomic(camera_path(scene, frame.id), camera_json(_nerfies_camera(camera, rotation, position)))
         source = frames_dir / f"{frame.id}.png"
         with Image.open(source) as decoded:
-            full = Image.fromarray(undistorter.image(np.asarray(decoded.convert("RGB")))) if undistorter else decoded
+            if undistorter:
+                with times.stage("undistortion"):
+                    full = Image.fromarray(undistorter.image(np.asarray(decoded.convert("RGB"))))
+            else:
+                full = decoded
             for factor in SCALES[1:]:
                 full.reduce(factor).save(rgb_folder(scene, factor) / source.name, format="PNG")
             if undistorter:
@@ -314,6 +334,7 @@ def _write_scene(
         masked=settings.mask_dir is not None,
         camera_solve={},
         seconds={},
+        cpu_seconds={},
     )
 
 
