@@ -27,7 +27,7 @@ from PIL import Image
 from liquidgs.data import DataConfig, check_dataset, load_dataset
 from liquidgs.data.capture import CaptureSettings, capture_scene
 from liquidgs.data.colmap import SolveOptions
-from liquidgs.data.pose_accuracy import similarity
+from liquidgs.data.pose_accuracy import scene_poses, score_poses, similarity
 from liquidgs.data.synthetic import render_rgba
 from liquidgs.data.video import extract_video_frames
 from liquidgs.media import write_video
@@ -66,6 +66,18 @@ def video_scene(pycolmap, handheld, tmp_path_factory):
     code, stdout, stderr = run_cli(
         ["data", "video", str(handheld.path), "--out", str(out), "--frames", str(FRAMES), "--max-size", "200",
          "--threads", "1"]
+    )  # fmt: skip
+    assert code == 0, stderr
+    return out, stdout
+
+
+@pytest.fixture(scope="module")
+def old_pipeline_scene(pycolmap, handheld, tmp_path_factory):
+    """The same video through the pipeline as it was: the incremental mapper, features everywhere."""
+    out = tmp_path_factory.mktemp("scenes") / "old"
+    code, stdout, stderr = run_cli(
+        ["data", "video", str(handheld.path), "--out", str(out), "--frames", str(FRAMES), "--max-size", "200",
+         "--threads", "1", "--mapper", "incremental", "--no-mask-moving", "--no-flow"]
     )  # fmt: skip
     assert code == 0, stderr
     return out, stdout
@@ -134,10 +146,19 @@ def test_every_frame_is_registered_and_the_stages_report_counts(video_scene):
     out, stdout = video_scene
     capture = json.loads((out / "capture.json").read_text())
     assert capture["frames_total"] == capture["frames_registered"] == FRAMES and capture["dropped"] == []
-    assert capture["camera_solve"]["attempt"] == "default" and len(capture["camera_solve"]["attempts"]) == 1
-    assert "camera solve: attempt 1 of 3 (default) succeeded" in stdout
-    for stage in ("extraction:", "features:", "matching (sequential):", "mapping:", "writing:"):
+    assert capture["camera_solve"]["attempt"] == "global mapper" and len(capture["camera_solve"]["attempts"]) == 1
+    assert "camera solve: attempt 1 of 4 (global mapper) succeeded" in stdout
+    assert capture["camera_solve"]["warnings"] == [] and "warning" not in stdout
+    logged = ("extraction:", "feature masks:", "features:", "matching (sequential):", "mapping (global):", "writing:")
+    for stage in logged:
         assert stage in stdout, stdout
+    # Every stage timed, wall and CPU, in the log and in capture.json.
+    stages = ["extraction", "feature masks", "features", "matching", "mapping", "undistortion", "writing", "flow"]
+    assert list(capture["seconds"]) == list(capture["cpu_seconds"]) == stages
+    assert all(value >= 0 for value in [*capture["seconds"].values(), *capture["cpu_seconds"].values()])
+    assert capture["cpu_seconds"]["features"] > 0 and capture["seconds"]["mapping"] > 0
+    assert next(line for line in stdout.splitlines() if line.startswith("time: features") or
+                line.startswith("time: extraction")).count("s CPU)") == len(stages) + 1
     assert f"done: {FRAMES}/{FRAMES} frames registered, mean reprojection error" in stdout
     assert capture["mean_reprojection_error_px"] < 1.0
     assert f"train: liquidgs train --data {out} --field mlp" in stdout
@@ -220,11 +241,39 @@ def test_no_flow_leaves_the_scene_without_flow(image_scene):
     assert not (out / "flow").exists() and "flow" not in stdout.split("time:")[1].splitlines()[0]
 
 
-def test_mask_dynamic_keeps_every_feature_off_the_moving_figure(image_scene, video_scene, handheld):
+def test_mask_dynamic_keeps_every_feature_off_the_moving_figure(image_scene, old_pipeline_scene, handheld):
     out, stdout, sources = image_scene
     assert "masks: 20 frames" in stdout
-    assert keypoints_on_figure(video_scene[0], handheld, int) >= 100  # unmasked: many
+    assert keypoints_on_figure(old_pipeline_scene[0], handheld, int) >= 100  # unmasked: many
     assert keypoints_on_figure(out, handheld, lambda image_id: sources[int(image_id)]) == 0
+
+
+def test_flow_masks_keep_most_features_off_the_moving_figure(video_scene, old_pipeline_scene, handheld):
+    """No masks given: the two-view motion masks of data.flow keep COLMAP's features off some of the ball.
+    Measured (one thread): 1392 keypoints on it with the masks, 1727 without (-19%): like the scene's
+    masks (test_the_scene_has_flow_and_motion_masks_that_find_the_ball) they miss the ball where it
+    rolls the way the camera slides, along the epipolar lines."""
+    out, stdout = video_scene
+    assert json.loads((out / "capture.json").read_text())["feature_masks"] == "flow"
+    assert json.loads((old_pipeline_scene[0] / "capture.json").read_text())["feature_masks"] == "none"
+    masked, unmasked = (keypoints_on_figure(scene, handheld, int) for scene in (out, old_pipeline_scene[0]))
+    print(f"keypoints on the ball: {masked} with flow masks, {unmasked} without")
+    assert masked <= 0.9 * unmasked, (masked, unmasked)
+
+
+def test_the_global_mapper_is_as_accurate_as_the_old_pipeline_against_the_truth(
+    video_scene, old_pipeline_scene, handheld
+):
+    """The issue's bar: centre RMS and relative rotation within 10% of the old pipeline's (or better)."""
+    truth = handheld.cam_to_world
+    scores = {}
+    for name, (scene, _) in (("new", video_scene), ("old", old_pipeline_scene)):
+        poses = scene_poses(scene)
+        scores[name] = score_poses(np.stack(list(poses.values())), truth[[int(i) for i in poses]])
+        print(name, scores[name].describe())
+    assert scores["new"].frames == scores["old"].frames == FRAMES
+    assert scores["new"].centre_rms <= 1.1 * scores["old"].centre_rms
+    assert scores["new"].relative_rotation_mean_deg <= 1.1 * scores["old"].relative_rotation_mean_deg
 
 
 def test_extraction_samples_frames_and_applies_a_phone_rotation(handheld, tmp_path):

@@ -102,6 +102,10 @@ class CaptureArgs:
     """Keep the frames as decoded and COLMAP's radial distortion k1 in the camera files (trained as if
     pinhole). By default the frames are undistorted into a pinhole camera by COLMAP's undistorter, the
     border cropped to valid pixels (and to sides divisible by 4), and the camera files carry no distortion."""
+    mask_moving: bool = True
+    """Without --mask-dynamic: find what moves from optical flow between neighbouring frames (pixels the
+    pair's dominant two-view geometry does not explain) and take no COLMAP features there; --no-mask-moving
+    takes features everywhere."""
     flow: bool = True
     """Compute optical flow and motion masks at the quick look's scale into flow/<k>x (see `data flow`);
     --no-flow skips it (`data flow SCENE` adds it later)."""
@@ -217,7 +221,7 @@ def quick_look_commands(out: Path, size: tuple[int, int]) -> list[str]:
 def _capture(args: CaptureArgs, source: Path, video: bool, fps: float | None = None, frames: int | None = None) -> int:
     from liquidgs.data.capture import CaptureSettings, capture_scene
 
-    if args.flow:
+    if args.flow or (args.mask_moving and args.mask_dynamic is None):
         import_cv2()  # fail before any work when it is missing
     from liquidgs.data.video import check_sampling
 
@@ -236,6 +240,7 @@ def _capture(args: CaptureArgs, source: Path, video: bool, fps: float | None = N
         solve=SolveOptions(matcher=args.matcher, mapper=args.mapper, threads=args.threads, deadline=args.deadline),
         keep_distortion=args.keep_distortion,
         flow=args.flow,
+        mask_moving=args.mask_moving,
     )
     summary = capture_scene(source, args.out, settings, lambda line: print(line, flush=True), video=video)
     print(

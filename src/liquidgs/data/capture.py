@@ -29,7 +29,7 @@ from liquidgs.data.colmap import (
     solve_cameras,
     undistorters,
 )
-from liquidgs.data.flow import compute_scene_flow
+from liquidgs.data.flow import compute_scene_flow, two_view_motion_masks
 from liquidgs.data.nerfies import (
     CAMERA_FOLDER,
     DATASET_FILE,
@@ -74,6 +74,8 @@ class CaptureSettings:
     """Write the frames as decoded, with COLMAP's k1 in the camera files (trained as if pinhole)."""
     flow: bool = True
     """Optical flow and motion masks (data.flow) at the training scale (training_downscale)."""
+    mask_moving: bool = True
+    """Without mask_dir: no features where data.flow's two-view motion masks see motion."""
 
 
 TRAINING_SIDE = 128
@@ -112,6 +114,9 @@ class CaptureSummary:
     matcher: str
     """The matcher of the attempt whose model is used."""
     masked: bool
+    feature_masks: str
+    """What kept features off moving things: "mask-dynamic" (the user's masks), "flow" (two-view motion
+    masks) or "none"."""
     camera_solve: dict
     """Which attempt's model is used ("attempt"), every attempt made ("attempts": name, matcher, mapper,
     changes, result: "used", "usable" or the refusal, warnings, seconds) and the used model's
@@ -173,6 +178,10 @@ def _build(
     if settings.mask_dir is not None:
         mask_dir = work / "masks"
         _colmap_masks(settings.mask_dir, frames, mask_dir, log)
+    elif settings.mask_moving:
+        mask_dir = work / "masks"
+        with times.stage("feature masks"):
+            _flow_masks(frames, frames_dir, mask_dir, log)
 
     names = [f"{frame.id}.png" for frame in frames]
     solved = solve_cameras(frames_dir, names, work, settings.solve, log, mask_dir=mask_dir)
@@ -217,6 +226,24 @@ def _colmap_masks(user_dir: Path, frames: list[ExtractedFrame], mask_dir: Path, 
     log(
         f"masks: {len(frames)} frames, {100 * np.mean(dynamic_share):.1f}% of pixels marked moving on average "
         "(no features there)"
+    )
+
+
+def _flow_masks(frames: list[ExtractedFrame], frames_dir: Path, mask_dir: Path, log: Log) -> None:
+    """COLMAP masks (zero = no features) of what moves, from flow at the training scale (two_view_motion_masks)."""
+    mask_dir.mkdir()
+    images = []
+    for frame in frames:
+        with Image.open(frames_dir / f"{frame.id}.png") as decoded:
+            full_size = decoded.size
+            images.append(np.asarray(decoded.convert("RGB").reduce(training_downscale(full_size))))
+    masks = two_view_motion_masks(images, log)
+    for frame, moving in zip(frames, masks):
+        full = Image.fromarray(np.where(moving, 0, 255).astype(np.uint8)).resize(full_size, Image.Resampling.NEAREST)
+        full.save(mask_dir / f"{frame.id}.png.png")
+    log(
+        f"feature masks: {100 * np.mean([mask.mean() for mask in masks]):.1f}% of pixels seen moving on average "
+        "(no features there; --no-mask-moving keeps them)"
     )
 
 
@@ -332,6 +359,7 @@ def _write_files(scene, frames, frames_dir, model, settings, log, times: StageTi
         undistortion=_undistortion_record(lens, undistort),
         matcher=settings.solve.matcher,
         masked=settings.mask_dir is not None,
+        feature_masks="mask-dynamic" if settings.mask_dir else ("flow" if settings.mask_moving else "none"),
         camera_solve={},
         seconds={},
         cpu_seconds={},
