@@ -46,6 +46,7 @@ from liquidgs.data.validate import open_image
 from liquidgs.data.video import (
     SIDE_MULTIPLE,
     ExtractedFrame,
+    check_changes,
     collect_image_frames,
     crop_to_multiple,
     extract_video_frames,
@@ -173,6 +174,7 @@ def _build(
             frames = collect_image_frames(source, frames_dir, max_size=settings.max_size, log=log)
     if len(frames) < 2:
         raise DataError(source, f"gives {len(frames)} frame; a scene needs at least 2")
+    check_changes(source, frames_dir, frames)
 
     mask_dir = None
     if settings.mask_dir is not None:

@@ -214,6 +214,8 @@ def solve_cameras(
                     model = _map(pycolmap, database_path, frames_dir, work_dir / f"sparse-{number}", attempt, total,
                                  options, log)  # fmt: skip
                 check_model(model, total, attempt.min_registered_share)
+                if total - model.num_reg_images() >= MIN_REGISTERED_FRAMES:
+                    _refuse_cut(database_path, image_names, "")
             except SolveError as error:
                 failures.append(error)
                 records.append(_record(attempt, str(error), started))
@@ -252,7 +254,38 @@ def solve_cameras(
             return _solved(model, attempt, records, times, warnings)
     cause = next((failure for failure in failures if isinstance(failure, NoDepthError)), failures[-1])
     tried = ", ".join(record["name"] for record in records)
+    _refuse_cut(database_path, image_names, f" [COLMAP tried: {tried}]")
     raise type(cause)(f"{cause} [COLMAP tried: {tried}]")
+
+
+def _refuse_cut(database_path: Path, image_names: list[str], suffix: str) -> None:
+    cut = cut_in(database_path, image_names)
+    if cut is not None:
+        before, after = cut
+        raise SolveError(
+            f"no frame up to {before} shares verified matches with any frame from {after} on: the clip seems "
+            f"to have a cut (two shots) there; register each shot on its own{suffix}"
+        )
+
+
+def cut_in(database_path: Path, image_names: list[str]) -> tuple[str, str] | None:
+    """(last frame before, first frame after) the first place in time order that no geometrically verified
+    pair of the database crosses, with at least MIN_REGISTERED_FRAMES frames on each side; None when every
+    place is crossed. (The database keeps only verified pairs, so a pair never compared and a pair compared
+    in vain look alike: a cut is only refused once a model leaves the frames past it out.)"""
+    pycolmap = import_pycolmap()
+    with pycolmap.Database.open(database_path) as database:
+        order = {image.image_id: image_names.index(image.name) for image in database.read_all_images()}
+        pair_ids, inliers = database.read_two_view_geometry_num_inliers()
+    crossing = np.zeros(len(image_names) + 1, int)  # verified pairs spanning the gap before each frame
+    for pair_id, count in zip(pair_ids, inliers):
+        if count > 0:
+            first, second = sorted(order[i] for i in pycolmap.pair_id_to_image_pair(pair_id))
+            crossing[first + 1 : second + 1] += 1
+    for gap in range(MIN_REGISTERED_FRAMES, len(image_names) - MIN_REGISTERED_FRAMES + 1):
+        if crossing[gap] == 0:
+            return image_names[gap - 1].rsplit(".", 1)[0], image_names[gap].rsplit(".", 1)[0]
+    return None
 
 
 def _solved(model, attempt: Attempt, records: list[dict], times: StageTimes, warnings: list[str]) -> Solved:
