@@ -276,6 +276,26 @@ def test_the_global_mapper_is_as_accurate_as_the_old_pipeline_against_the_truth(
     assert scores["new"].relative_rotation_mean_deg <= 1.1 * scores["old"].relative_rotation_mean_deg
 
 
+def test_every_attempt_stops_at_its_deadline_and_says_so(pycolmap, handheld, old_pipeline_scene, tmp_path):
+    """The incremental mapper on the 32 frames takes seconds of CPU with one thread (the old pipeline's
+    run: measured 3-4 s); a deadline of 1 s stops each attempt's mapping, and the refusal says why."""
+    cpu = json.loads((old_pipeline_scene[0] / "capture.json").read_text())["cpu_seconds"]["mapping"]
+    assert cpu > 1.5, cpu  # the premise: one attempt's mapping takes longer than the deadline
+    out = tmp_path / "scene"
+    code, stdout, stderr = run_cli(
+        ["data", "video", str(handheld.path), "--out", str(out), "--frames", str(FRAMES), "--max-size", "200",
+         "--threads", "1", "--mapper", "incremental", "--no-flow", "--no-mask-moving", "--deadline", "1"]
+    )  # fmt: skip
+    assert code == 2 and not out.exists()
+    stopped = [line for line in stdout.splitlines() if line.startswith("mapping (incremental):")]
+    assert len(stopped) == 3 and all(line.endswith("; stopped at its deadline of 1 s)") for line in stopped), stdout
+    seconds = [float(line.rsplit("(", 1)[1].split(" s;")[0]) for line in stopped]
+    assert max(seconds) < 1.0 + 3.0, seconds  # COLMAP checks its clock between frames
+    assert "next: attempt 2 of 3 will try every pair of frames matched" in stdout
+    assert "(its mapping was stopped at the deadline of 1 s; --deadline SECONDS gives it longer)" in stderr
+    assert len(stderr.strip().splitlines()) == 1, stderr
+
+
 def test_extraction_samples_frames_and_applies_a_phone_rotation(handheld, tmp_path):
     import imageio_ffmpeg
 

@@ -211,9 +211,15 @@ def solve_cameras(
                 if matching[attempt.matcher] is not None:
                     raise matching[attempt.matcher]
                 with times.stage("mapping"):
-                    model = _map(pycolmap, database_path, frames_dir, work_dir / f"sparse-{number}", attempt, total,
-                                 options, log)  # fmt: skip
-                check_model(model, total, attempt.min_registered_share)
+                    model, stopped = _map(pycolmap, database_path, frames_dir, work_dir / f"sparse-{number}",
+                                          attempt, total, options, log)  # fmt: skip
+                try:
+                    check_model(model, total, attempt.min_registered_share)
+                except SolveError as error:
+                    if stopped:  # what failed was time: say so, and how to give more
+                        raise type(error)(f"{error} (its mapping was stopped at the deadline of {options.deadline} "
+                                          "s; --deadline SECONDS gives it longer)") from None  # fmt: skip
+                    raise
                 if total - model.num_reg_images() >= MIN_REGISTERED_FRAMES:
                     _refuse_cut(database_path, image_names, "")
             except SolveError as error:
@@ -375,8 +381,9 @@ def _match(pycolmap, database_path: Path, matcher: Matcher, total: int, options:
 
 
 def _map(pycolmap, database_path: Path, frames_dir: Path, sparse_dir: Path, attempt: Attempt, total: int,
-         options: SolveOptions, log: Log) -> pycolmap.Reconstruction:  # fmt: skip
-    """COLMAP's global or incremental mapping with the attempt's options, under the deadline; the largest model."""
+         options: SolveOptions, log: Log) -> tuple[pycolmap.Reconstruction, bool]:  # fmt: skip
+    """COLMAP's global or incremental mapping with the attempt's options, under the deadline: the largest
+    model, and whether the deadline stopped it."""
     started = time.perf_counter()
     sparse_dir.mkdir()
     if attempt.kind == "global":
@@ -416,7 +423,7 @@ def _map(pycolmap, database_path: Path, frames_dir: Path, sparse_dir: Path, atte
         f"mapping ({attempt.kind}): {len(models)} model(s); the largest has {model.num_reg_images()} of {total} "
         f"frames and {model.num_points3D()} points ({seconds:.1f} s{late})"
     )
-    return model
+    return model, bool(late)
 
 
 def check_model(model: pycolmap.Reconstruction, total: int, min_share: float = MIN_REGISTERED_SHARE) -> None:
