@@ -77,7 +77,19 @@ def old_pipeline_scene(pycolmap, handheld, tmp_path_factory):
     out = tmp_path_factory.mktemp("scenes") / "old"
     code, stdout, stderr = run_cli(
         ["data", "video", str(handheld.path), "--out", str(out), "--frames", str(FRAMES), "--max-size", "200",
-         "--threads", "1", "--mapper", "incremental", "--no-mask-moving", "--no-flow"]
+         "--threads", "1", "--mapper", "incremental", "--no-flow"]
+    )  # fmt: skip
+    assert code == 0, stderr
+    return out, stdout
+
+
+@pytest.fixture(scope="module")
+def flow_masked_scene(pycolmap, handheld, tmp_path_factory):
+    """The old pipeline with --mask-moving: no features where the two-view motion masks see motion."""
+    out = tmp_path_factory.mktemp("scenes") / "masked"
+    code, stdout, stderr = run_cli(
+        ["data", "video", str(handheld.path), "--out", str(out), "--frames", str(FRAMES), "--max-size", "200",
+         "--threads", "1", "--mapper", "incremental", "--mask-moving", "--no-flow"]
     )  # fmt: skip
     assert code == 0, stderr
     return out, stdout
@@ -149,11 +161,11 @@ def test_every_frame_is_registered_and_the_stages_report_counts(video_scene):
     assert capture["camera_solve"]["attempt"] == "global mapper" and len(capture["camera_solve"]["attempts"]) == 1
     assert "camera solve: attempt 1 of 4 (global mapper) succeeded" in stdout
     assert capture["camera_solve"]["warnings"] == [] and "warning" not in stdout
-    logged = ("extraction:", "feature masks:", "features:", "matching (sequential):", "mapping (global):", "writing:")
+    logged = ("extraction:", "features:", "matching (sequential):", "mapping (global):", "writing:")
     for stage in logged:
         assert stage in stdout, stdout
     # Every stage timed, wall and CPU, in the log and in capture.json.
-    stages = ["extraction", "feature masks", "features", "matching", "mapping", "undistortion", "writing", "flow"]
+    stages = ["extraction", "features", "matching", "mapping", "undistortion", "writing", "flow"]
     assert list(capture["seconds"]) == list(capture["cpu_seconds"]) == stages
     assert all(value >= 0 for value in [*capture["seconds"].values(), *capture["cpu_seconds"].values()])
     assert capture["cpu_seconds"]["features"] > 0 and capture["seconds"]["mapping"] > 0
@@ -248,12 +260,13 @@ def test_mask_dynamic_keeps_every_feature_off_the_moving_figure(image_scene, old
     assert keypoints_on_figure(out, handheld, lambda image_id: sources[int(image_id)]) == 0
 
 
-def test_flow_masks_keep_most_features_off_the_moving_figure(video_scene, old_pipeline_scene, handheld):
+def test_flow_masks_keep_some_features_off_the_moving_figure(flow_masked_scene, old_pipeline_scene, handheld):
     """No masks given: the two-view motion masks of data.flow keep COLMAP's features off some of the ball.
     Measured (one thread): 1392 keypoints on it with the masks, 1727 without (-19%): like the scene's
     masks (test_the_scene_has_flow_and_motion_masks_that_find_the_ball) they miss the ball where it
     rolls the way the camera slides, along the epipolar lines."""
-    out, stdout = video_scene
+    out, stdout = flow_masked_scene
+    assert "feature masks: " in stdout and "% of pixels seen moving on average (no features there)" in stdout
     assert json.loads((out / "capture.json").read_text())["feature_masks"] == "flow"
     assert json.loads((old_pipeline_scene[0] / "capture.json").read_text())["feature_masks"] == "none"
     masked, unmasked = (keypoints_on_figure(scene, handheld, int) for scene in (out, old_pipeline_scene[0]))
@@ -264,7 +277,9 @@ def test_flow_masks_keep_most_features_off_the_moving_figure(video_scene, old_pi
 def test_the_global_mapper_is_as_accurate_as_the_old_pipeline_against_the_truth(
     video_scene, old_pipeline_scene, handheld
 ):
-    """The issue's bar: centre RMS and relative rotation within 10% of the old pipeline's (or better)."""
+    """The issue's bar: centre RMS and relative rotation within 10% of the old pipeline's (or better).
+    Measured (one thread, shared 2-core VM): global 0.0034 (0.08% of the path), 0.064 degrees mean;
+    incremental 0.0041, 0.075 degrees. With --mask-moving both were worse: 0.0051 and 0.0059."""
     truth = handheld.cam_to_world
     scores = {}
     for name, (scene, _) in (("new", video_scene), ("old", old_pipeline_scene)):

@@ -75,7 +75,7 @@ class CaptureSettings:
     """Write the frames as decoded, with COLMAP's k1 in the camera files (trained as if pinhole)."""
     flow: bool = True
     """Optical flow and motion masks (data.flow) at the training scale (training_downscale)."""
-    mask_moving: bool = True
+    mask_moving: bool = False
     """Without mask_dir: no features where data.flow's two-view motion masks see motion."""
 
 
@@ -245,7 +245,7 @@ def _flow_masks(frames: list[ExtractedFrame], frames_dir: Path, mask_dir: Path, 
         full.save(mask_dir / f"{frame.id}.png.png")
     log(
         f"feature masks: {100 * np.mean([mask.mean() for mask in masks]):.1f}% of pixels seen moving on average "
-        "(no features there; --no-mask-moving keeps them)"
+        "(no features there)"
     )
 
 
