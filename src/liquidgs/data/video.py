@@ -193,12 +193,15 @@ STILL_LEVELS = 1.0
 
 
 def check_changes(source: Path, frames_dir: Path, frames: list[ExtractedFrame]) -> None:
-    """Refuse frames that are all one picture (a still image repeated): nothing for COLMAP to solve."""
+    """Refuse frames that are all one picture (a still image repeated): nothing for COLMAP to solve. A blank
+    picture is left to COLMAP, whose refusal (no features) says what to film instead."""
     largest = 0.0
     previous = None
     for frame in frames:
         with Image.open(frames_dir / f"{frame.id}.png") as decoded:
             current = np.asarray(decoded.convert("L"), dtype=np.int16)
+        if previous is None and current.std() < STILL_LEVELS:
+            return
         if previous is not None:
             largest = max(largest, float(np.abs(current - previous).mean()))
             if largest >= STILL_LEVELS:
