@@ -87,7 +87,8 @@ class CaptureArgs:
     """The first attempt's mapper: global (COLMAP's global mapper, GLOMAP: seconds on a 100-frame clip) or
     incremental (COLMAP's classic mapper: minutes). A global model with plausibility warnings (lens,
     path jumps, thin frames) is compared with the incremental mapper's on the same matches, and the one
-    with fewer warnings is used; the incremental mapper is the fallback when the global one fails."""
+    with fewer warnings is used (the incremental one on a tie); the incremental mapper is the fallback when
+    the global one fails."""
     deadline: int = DEADLINE_SECONDS
     """Seconds each attempt's mapping may take before it is stopped (and its model checked as it is)."""
     mask_dynamic: Path | None = None

@@ -8,8 +8,8 @@ largest model is kept. When an attempt gives no usable model, the next is tried 
 the incremental mapper on the same matches, every pair of frames matched, then a relaxed initial
 pair. A global model that passes COLMAP's checks but not the phone-camera checks of
 data.plausibility is compared with the incremental mapper's on the same matches, and the one with
-fewer warnings is used. Each attempt's mapping has a deadline; each attempt, its seconds and the
-one used are logged and returned.
+fewer warnings is used (the incremental one on a tie). Each attempt's mapping has a deadline; each
+attempt, its seconds and the one used are logged and returned.
 
 Undistortion (`undistorters`): pycolmap.undistort_camera / undistort_image with COLMAP's default
 options. blank_pixels = 0 means the border is cropped: the pinhole image keeps the focal length
@@ -241,7 +241,7 @@ def solve_cameras(
             records.append(_record(attempt, "usable", started, warnings))
             if held is not None:
                 held_label, held_model, held_warnings = held  # the global mapper's: always attempts[0]
-                if len(warnings) < len(held_warnings):
+                if len(warnings) <= len(held_warnings):  # a tie goes to the incremental mapper, the tried one
                     log(f"camera solve: {label} is used: {len(warnings)} warning(s) against the "
                         f"{held_label}'s {len(held_warnings)}")  # fmt: skip
                     return _solved(model, attempt, records, times, warnings)
