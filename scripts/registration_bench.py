@@ -8,7 +8,8 @@ benchmark's settings, without the flow that follows registration), a folder of i
 --max-size 640 --no-flow`, with the old checkout's code, then with this one's; CPU time is the child's
 (resource.getrusage), so other load on the machine shows in wall time only. A folder may have a
 truth.txt beside it (<folder>.truth.txt): one line per image, camera centre x y z then its
-camera-to-world rotation row by row; both runs are then scored against it. Prints one line per run
+camera-to-world rotation row by row, in OpenGL's camera axes (x right, y up, z backwards; the New
+Tsukuba truth's); both runs are then scored against it. Prints one line per run
 and the scores per clip.
 """
 
@@ -59,7 +60,8 @@ def against_truth(scene: Path, truth_file: Path) -> str:
     """The scene's cameras (image folder runs: ids are positions in name order) against truth.txt's."""
     rows = np.loadtxt(truth_file).reshape(-1, 12)
     truth = np.tile(np.eye(4), (len(rows), 1, 1))
-    truth[:, :3, 3], truth[:, :3, :3] = rows[:, :3], rows[:, 3:].reshape(-1, 3, 3)
+    opengl_to_opencv = np.diag([1.0, -1.0, -1.0])  # y and z flipped: the scenes' cameras are OpenCV's
+    truth[:, :3, 3], truth[:, :3, :3] = rows[:, :3], rows[:, 3:].reshape(-1, 3, 3) @ opengl_to_opencv
     poses = scene_poses(scene)
     return score_poses(np.stack(list(poses.values())), truth[[int(i) for i in poses]]).describe()
 
