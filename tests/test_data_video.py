@@ -310,7 +310,8 @@ def test_every_attempt_stops_at_its_deadline_and_says_so(pycolmap, handheld, old
     seconds = [float(line.rsplit("(", 1)[1].split(" s;")[0]) for line in stopped]
     assert max(seconds) < 1.0 + 3.0, seconds  # COLMAP checks its clock between frames
     assert "next: attempt 2 of 3 will try every pair of frames matched" in stdout
-    assert "(its mapping was stopped at the deadline of 1 s; --deadline SECONDS gives it longer)" in stderr
+    # Refused for the deadline whether what it had registered passed the other checks or not.
+    assert "stopped at the deadline of 1 s" in stderr and "--deadline SECONDS gives it longer" in stderr
     assert len(stderr.strip().splitlines()) == 1, stderr
 
 

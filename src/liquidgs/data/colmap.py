@@ -225,6 +225,11 @@ def solve_cameras(
                         raise type(error)(f"{error} (its mapping was stopped at the deadline of {options.deadline} "
                                           "s; --deadline SECONDS gives it longer)") from None  # fmt: skip
                     raise
+                if stopped and model.num_reg_images() < total:  # cut short: frames COLMAP had not reached yet
+                    raise SolveError(
+                        f"COLMAP's mapping was stopped at the deadline of {options.deadline} s with "
+                        f"{model.num_reg_images()} of {total} frames registered; --deadline SECONDS gives it longer"
+                    )
                 if total - model.num_reg_images() >= MIN_REGISTERED_FRAMES:
                     _refuse_cut(database_path, image_names, "")
             except SolveError as error:
