@@ -60,39 +60,33 @@ def pycolmap():
     return require_module("pycolmap")
 
 
-@pytest.fixture(scope="module")
-def video_scene(pycolmap, handheld, tmp_path_factory):
-    out = tmp_path_factory.mktemp("scenes") / "handheld"
+def register_handheld(handheld, out: Path, *extra: str) -> tuple[Path, str]:
+    """`data video` on the rendered clip, all its frames at 200 px, one COLMAP thread: (scene, stdout)."""
     code, stdout, stderr = run_cli(
         ["data", "video", str(handheld.path), "--out", str(out), "--frames", str(FRAMES), "--max-size", "200",
-         "--threads", "1"]
+         "--threads", "1", *extra]
     )  # fmt: skip
     assert code == 0, stderr
     return out, stdout
+
+
+@pytest.fixture(scope="module")
+def video_scene(pycolmap, handheld, tmp_path_factory):
+    return register_handheld(handheld, tmp_path_factory.mktemp("scenes") / "handheld")
 
 
 @pytest.fixture(scope="module")
 def old_pipeline_scene(pycolmap, handheld, tmp_path_factory):
     """The same video through the pipeline as it was: the incremental mapper, features everywhere."""
     out = tmp_path_factory.mktemp("scenes") / "old"
-    code, stdout, stderr = run_cli(
-        ["data", "video", str(handheld.path), "--out", str(out), "--frames", str(FRAMES), "--max-size", "200",
-         "--threads", "1", "--mapper", "incremental", "--no-flow"]
-    )  # fmt: skip
-    assert code == 0, stderr
-    return out, stdout
+    return register_handheld(handheld, out, "--mapper", "incremental", "--no-flow")
 
 
 @pytest.fixture(scope="module")
 def flow_masked_scene(pycolmap, handheld, tmp_path_factory):
     """The old pipeline with --mask-moving: no features where the two-view motion masks see motion."""
     out = tmp_path_factory.mktemp("scenes") / "masked"
-    code, stdout, stderr = run_cli(
-        ["data", "video", str(handheld.path), "--out", str(out), "--frames", str(FRAMES), "--max-size", "200",
-         "--threads", "1", "--mapper", "incremental", "--mask-moving", "--no-flow"]
-    )  # fmt: skip
-    assert code == 0, stderr
-    return out, stdout
+    return register_handheld(handheld, out, "--mapper", "incremental", "--mask-moving", "--no-flow")
 
 
 @pytest.fixture(scope="module")
