@@ -27,6 +27,7 @@ from PIL import Image
 from liquidgs.data import DataConfig, check_dataset, load_dataset
 from liquidgs.data.capture import CaptureSettings, capture_scene
 from liquidgs.data.colmap import SolveOptions
+from liquidgs.data.pose_accuracy import scene_poses, score_poses, similarity
 from liquidgs.data.synthetic import render_rgba
 from liquidgs.data.video import extract_video_frames
 from liquidgs.media import write_video
@@ -59,15 +60,33 @@ def pycolmap():
     return require_module("pycolmap")
 
 
-@pytest.fixture(scope="module")
-def video_scene(pycolmap, handheld, tmp_path_factory):
-    out = tmp_path_factory.mktemp("scenes") / "handheld"
+def register_handheld(handheld, out: Path, *extra: str) -> tuple[Path, str]:
+    """`data video` on the rendered clip, all its frames at 200 px, one COLMAP thread: (scene, stdout)."""
     code, stdout, stderr = run_cli(
         ["data", "video", str(handheld.path), "--out", str(out), "--frames", str(FRAMES), "--max-size", "200",
-         "--threads", "1"]
+         "--threads", "1", *extra]
     )  # fmt: skip
     assert code == 0, stderr
     return out, stdout
+
+
+@pytest.fixture(scope="module")
+def video_scene(pycolmap, handheld, tmp_path_factory):
+    return register_handheld(handheld, tmp_path_factory.mktemp("scenes") / "handheld")
+
+
+@pytest.fixture(scope="module")
+def old_pipeline_scene(pycolmap, handheld, tmp_path_factory):
+    """The same video through the pipeline as it was: the incremental mapper, features everywhere."""
+    out = tmp_path_factory.mktemp("scenes") / "old"
+    return register_handheld(handheld, out, "--mapper", "incremental", "--no-flow")
+
+
+@pytest.fixture(scope="module")
+def flow_masked_scene(pycolmap, handheld, tmp_path_factory):
+    """The old pipeline with --mask-moving: no features where the two-view motion masks see motion."""
+    out = tmp_path_factory.mktemp("scenes") / "masked"
+    return register_handheld(handheld, out, "--mapper", "incremental", "--mask-moving", "--no-flow")
 
 
 @pytest.fixture(scope="module")
@@ -99,7 +118,10 @@ def image_scene(pycolmap, handheld, tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def distorted_scenes(pycolmap, tmp_path_factory):
-    """The handheld video through PHONE_LENS, made into a scene by default and with --keep-distortion."""
+    """The handheld video through PHONE_LENS, made into a scene by default and with --keep-distortion, both
+    with the incremental mapper: the global one recovers this lens less well (measured: undistorted frames
+    off their pinhole render by 16.6 at the border and 12.6 at the centre, against 13.5 and 11.0), so that
+    undistorting buys 2.8 at the border where the test holds the incremental mapper to 5."""
     root = tmp_path_factory.mktemp("distorted")
     video = render_handheld_video(root / "phone.mp4", DISTORTED_FRAMES, PHONE_LENS)
     scenes, stdouts = {}, {}
@@ -107,21 +129,10 @@ def distorted_scenes(pycolmap, tmp_path_factory):
         scenes[name] = root / name
         code, stdouts[name], stderr = run_cli(
             ["data", "video", str(video.path), "--out", str(scenes[name]), "--frames", str(DISTORTED_FRAMES),
-             "--max-size", "200", "--threads", "1", *extra]
+             "--max-size", "200", "--threads", "1", "--mapper", "incremental", *extra]
         )  # fmt: skip
         assert code == 0, stderr
     return video, scenes, stdouts
-
-
-def similarity(source: np.ndarray, target: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
-    """(s, R, t) minimising |s R source + t - target|^2 (Umeyama 1991)."""
-    mean_s, mean_t = source.mean(0), target.mean(0)
-    a, b = source - mean_s, target - mean_t
-    u, singular, vt = np.linalg.svd(b.T @ a / len(source))
-    d = np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))])
-    rotation = u @ d @ vt
-    scale = float(np.trace(np.diag(singular) @ d) / a.var(0).sum())
-    return scale, rotation, mean_t - scale * rotation @ mean_s
 
 
 def cameras(scene: Path) -> tuple[list[str], np.ndarray, np.ndarray]:
@@ -144,10 +155,19 @@ def test_every_frame_is_registered_and_the_stages_report_counts(video_scene):
     out, stdout = video_scene
     capture = json.loads((out / "capture.json").read_text())
     assert capture["frames_total"] == capture["frames_registered"] == FRAMES and capture["dropped"] == []
-    assert capture["camera_solve"]["attempt"] == "default" and len(capture["camera_solve"]["attempts"]) == 1
-    assert "camera solve: attempt 1 of 3 (default) succeeded" in stdout
-    for stage in ("extraction:", "features:", "matching (sequential):", "mapping:", "writing:"):
+    assert capture["camera_solve"]["attempt"] == "global mapper" and len(capture["camera_solve"]["attempts"]) == 1
+    assert "camera solve: attempt 1 of 4 (global mapper) succeeded" in stdout
+    assert capture["camera_solve"]["warnings"] == [] and "warning" not in stdout
+    logged = ("extraction:", "features:", "matching (sequential):", "mapping (global):", "writing:")
+    for stage in logged:
         assert stage in stdout, stdout
+    # Every stage timed, wall and CPU, in the log and in capture.json.
+    stages = ["extraction", "features", "matching", "mapping", "undistortion", "writing", "flow"]
+    assert list(capture["seconds"]) == list(capture["cpu_seconds"]) == stages
+    assert all(value >= 0 for value in [*capture["seconds"].values(), *capture["cpu_seconds"].values()])
+    assert capture["cpu_seconds"]["features"] > 0 and capture["seconds"]["mapping"] > 0
+    time_line = next(line for line in stdout.splitlines() if line.startswith("time: extraction"))
+    assert time_line.count("s CPU)") == len(stages) + 1  # each stage, and the total
     assert f"done: {FRAMES}/{FRAMES} frames registered, mean reprojection error" in stdout
     assert capture["mean_reprojection_error_px"] < 1.0
     assert f"train: liquidgs train --data {out} --field mlp" in stdout
@@ -230,11 +250,63 @@ def test_no_flow_leaves_the_scene_without_flow(image_scene):
     assert not (out / "flow").exists() and "flow" not in stdout.split("time:")[1].splitlines()[0]
 
 
-def test_mask_dynamic_keeps_every_feature_off_the_moving_figure(image_scene, video_scene, handheld):
+def test_mask_dynamic_keeps_every_feature_off_the_moving_figure(image_scene, old_pipeline_scene, handheld):
     out, stdout, sources = image_scene
     assert "masks: 20 frames" in stdout
-    assert keypoints_on_figure(video_scene[0], handheld, int) >= 100  # unmasked: many
+    assert keypoints_on_figure(old_pipeline_scene[0], handheld, int) >= 100  # unmasked: many
     assert keypoints_on_figure(out, handheld, lambda image_id: sources[int(image_id)]) == 0
+
+
+def test_flow_masks_keep_some_features_off_the_moving_figure(flow_masked_scene, old_pipeline_scene, handheld):
+    """No masks given: the two-view motion masks of data.flow keep COLMAP's features off some of the ball.
+    Measured (one thread): 1392 keypoints on it with the masks, 1727 without (-19%): like the scene's
+    masks (test_the_scene_has_flow_and_motion_masks_that_find_the_ball) they miss the ball where it
+    rolls the way the camera slides, along the epipolar lines."""
+    out, stdout = flow_masked_scene
+    assert "feature masks: " in stdout and "% of pixels seen moving on average (no features there)" in stdout
+    assert json.loads((out / "capture.json").read_text())["feature_masks"] == "flow"
+    assert json.loads((old_pipeline_scene[0] / "capture.json").read_text())["feature_masks"] == "none"
+    masked, unmasked = (keypoints_on_figure(scene, handheld, int) for scene in (out, old_pipeline_scene[0]))
+    print(f"keypoints on the ball: {masked} with flow masks, {unmasked} without")
+    assert masked <= 0.9 * unmasked, (masked, unmasked)
+
+
+def test_the_global_mapper_is_as_accurate_as_the_old_pipeline_against_the_truth(
+    video_scene, old_pipeline_scene, handheld
+):
+    """The issue's bar: centre RMS and relative rotation within 10% of the old pipeline's (or better).
+    Measured (one thread, shared 2-core VM): global 0.0034 (0.08% of the path), 0.064 degrees mean;
+    incremental 0.0041, 0.075 degrees. With --mask-moving both were worse: 0.0051 and 0.0059."""
+    truth = handheld.cam_to_world
+    scores = {}
+    for name, (scene, _) in (("new", video_scene), ("old", old_pipeline_scene)):
+        poses = scene_poses(scene)
+        scores[name] = score_poses(np.stack(list(poses.values())), truth[[int(i) for i in poses]])
+        print(name, scores[name].describe())
+    assert scores["new"].frames == scores["old"].frames == FRAMES
+    assert scores["new"].centre_rms <= 1.1 * scores["old"].centre_rms
+    assert scores["new"].relative_rotation_mean_deg <= 1.1 * scores["old"].relative_rotation_mean_deg
+
+
+def test_every_attempt_stops_at_its_deadline_and_says_so(pycolmap, handheld, old_pipeline_scene, tmp_path):
+    """The incremental mapper on the 32 frames takes seconds of CPU with one thread (the old pipeline's
+    run: measured 3-4 s); a deadline of 1 s stops each attempt's mapping, and the refusal says why."""
+    cpu = json.loads((old_pipeline_scene[0] / "capture.json").read_text())["cpu_seconds"]["mapping"]
+    assert cpu > 1.5, cpu  # the premise: one attempt's mapping takes longer than the deadline
+    out = tmp_path / "scene"
+    code, stdout, stderr = run_cli(
+        ["data", "video", str(handheld.path), "--out", str(out), "--frames", str(FRAMES), "--max-size", "200",
+         "--threads", "1", "--mapper", "incremental", "--no-flow", "--no-mask-moving", "--deadline", "1"]
+    )  # fmt: skip
+    assert code == 2 and not out.exists()
+    stopped = [line for line in stdout.splitlines() if line.startswith("mapping (incremental):")]
+    assert len(stopped) == 3 and all(line.endswith("; stopped at its deadline of 1 s)") for line in stopped), stdout
+    seconds = [float(line.rsplit("(", 1)[1].split(" s;")[0]) for line in stopped]
+    assert max(seconds) < 1.0 + 3.0, seconds  # COLMAP checks its clock between frames
+    assert "next: attempt 2 of 3 will try every pair of frames matched" in stdout
+    # Refused for the deadline whether what it had registered passed the other checks or not.
+    assert "stopped at the deadline of 1 s" in stderr and "--deadline SECONDS gives it longer" in stderr
+    assert len(stderr.strip().splitlines()) == 1, stderr
 
 
 def test_extraction_samples_frames_and_applies_a_phone_rotation(handheld, tmp_path):

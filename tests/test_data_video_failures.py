@@ -33,7 +33,8 @@ def test_a_camera_turning_in_place_is_named_as_the_cause_after_every_attempt(tmp
     images = [render_rgba(prims, K, pose, WIDTH, HEIGHT, 1)[..., :3] for pose in poses]
     clip = tmp_path / "pan.mp4"
     write_video(clip, images, fps=FPS)
-    assert cli(["data", "video", str(clip), "--frames", "16", "--out", str(tmp_path / "scene"), "--threads", "1"]) == 2
+    args = ["data", "video", str(clip), "--frames", "16", "--out", str(tmp_path / "scene"), "--threads", "1"]
+    assert cli([*args, "--mapper", "incremental"]) == 2
     out, err = capsys.readouterr()
     assert len(err.strip().splitlines()) == 1 and "Traceback" not in err, err
     assert not list(tmp_path.glob("*scene*"))
@@ -63,3 +64,28 @@ def test_a_three_frame_video_or_image_folder_is_refused(tmp_path, capsys):
         Image.fromarray(image).save(folder / f"{index}.png")
     err = one_line_failure(capsys, ["data", "images", str(folder)], tmp_path / "scene2")
     assert "gives 3 frame(s); solving cameras needs at least 4 (more images)" in err
+
+
+def test_a_still_image_repeated_is_refused_before_colmap(tmp_path, capsys):
+    video = render_handheld_video(tmp_path / "one.mp4", 4)
+    clip = tmp_path / "still.mp4"
+    write_video(clip, [video.images[1]] * 12, fps=FPS)
+    err = one_line_failure(capsys, ["data", "video", str(clip), "--frames", "12"], tmp_path / "scene")
+    assert "still.mp4: its 12 frames show one still picture" in err and "film while walking around" in err
+    assert "features:" not in capsys.readouterr().out
+
+
+@pytest.mark.slow  # COLMAP's attempts on 16 frames, about 30 s of CPU
+def test_a_cut_between_two_shots_is_named_with_its_frames(tmp_path, capsys):
+    first = render_handheld_video(tmp_path / "first.mp4", 8).images
+    # The second shot: a camera sliding over a wholly different textured picture.
+    rng = np.random.default_rng(0)
+    picture = np.kron(rng.integers(0, 256, (HEIGHT // 4 + 2, WIDTH // 4 + 12, 3)), np.ones((4, 4, 1))).astype(np.uint8)
+    second = [np.ascontiguousarray(picture[4 : HEIGHT + 4, 5 * n : 5 * n + WIDTH]) for n in range(8)]
+    folder = tmp_path / "images"
+    folder.mkdir()
+    for index, image in enumerate([*first, *second]):
+        Image.fromarray(image).save(folder / f"{index:02d}.png")
+    err = one_line_failure(capsys, ["data", "images", str(folder)], tmp_path / "scene")
+    assert "no frame up to 000007 shares verified matches with any frame from 000008 on" in err, err
+    assert "a cut (two shots)" in err and "register each shot on its own" in err

@@ -47,7 +47,9 @@ def ends_only(tmp_path_factory):
 def test_a_clip_whose_ends_only_meet_in_exhaustive_matching_is_solved_by_the_second_attempt(ends_only, tmp_path):
     images, poses = ends_only
     out = tmp_path / "scene"
-    code, stdout, stderr = run_cli(["data", "images", str(images), "--out", str(out), "--threads", "1"])
+    code, stdout, stderr = run_cli(
+        ["data", "images", str(images), "--out", str(out), "--threads", "1", "--mapper", "incremental"]
+    )
     assert code == 0, stderr
 
     # Tried in order, the next only after the one before was refused by COLMAP itself (no mock);
@@ -89,10 +91,22 @@ def test_matcher_exhaustive_is_the_default_attempt_and_leaves_two(ends_only, tmp
     images, _ = ends_only
     out = tmp_path / "scene"
     code, stdout, stderr = run_cli(
-        ["data", "images", str(images), "--out", str(out), "--threads", "1", "--matcher", "exhaustive"]
+        [
+            "data",
+            "images",
+            str(images),
+            "--out",
+            str(out),
+            "--threads",
+            "1",
+            "--matcher",
+            "exhaustive",
+            "--mapper",
+            "incremental",
+        ]
     )
     assert code == 0, stderr
-    assert "attempt 1 of 2 (default): exhaustive matching, COLMAP's mapper defaults" in stdout
+    assert "attempt 1 of 2 (default): exhaustive matching, COLMAP's incremental mapper with its defaults" in stdout
     assert "camera solve: attempt 1 of 2 (default) succeeded" in stdout
     capture = json.loads((out / "capture.json").read_text())
     assert capture["matcher"] == "exhaustive" and capture["camera_solve"]["attempt"] == "default"

@@ -14,7 +14,7 @@ from rich.console import Console
 from liquidgs.commands.progress import StageLog
 from liquidgs.data import DataConfig, check_dataset, generate_synthetic
 from liquidgs.data.capture import training_downscale
-from liquidgs.data.colmap import Matcher, SolveOptions, import_pycolmap
+from liquidgs.data.colmap import DEADLINE_SECONDS, MapperKind, Matcher, SolveOptions, import_pycolmap
 from liquidgs.data.flow import check_scene_flow, compute_scene_flow, import_cv2, scene_image_size
 from liquidgs.data.scene import Background, DataFormat, Split
 from liquidgs.errors import ConfigError
@@ -85,6 +85,14 @@ class CaptureArgs:
     """Which frame pairs COLMAP matches first: sequential (each frame with the 1st, 2nd, 4th, 8th, ...
     512th after it; for frames in time order) or exhaustive (every pair; slower). When the solve gives
     no usable model, it is tried again with every pair matched, then with a relaxed initial pair."""
+    mapper: MapperKind = "global"
+    """The first attempt's mapper: global (COLMAP's global mapper, GLOMAP: seconds on a 100-frame clip) or
+    incremental (COLMAP's classic mapper: minutes). A global model with plausibility warnings (lens,
+    path jumps, thin frames) is compared with the incremental mapper's on the same matches, and the one
+    with fewer warnings is used (the incremental one on a tie); the incremental mapper is the fallback when
+    the global one fails."""
+    deadline: int = DEADLINE_SECONDS
+    """Seconds each attempt's mapping may take before it is stopped (and its model checked as it is)."""
     mask_dynamic: Path | None = None
     """Folder of masks of the moving things, one per frame (video: <frame number, 6 digits>.png, counted
     from 0 in the decoded stream; images: <image stem>.png). Nonzero pixels are moving: COLMAP
@@ -97,6 +105,11 @@ class CaptureArgs:
     """Keep the frames as decoded and COLMAP's radial distortion k1 in the camera files (trained as if
     pinhole). By default the frames are undistorted into a pinhole camera by COLMAP's undistorter, the
     border cropped to valid pixels (and to sides divisible by 4), and the camera files carry no distortion."""
+    mask_moving: bool = False
+    """Without --mask-dynamic: find what moves from optical flow between neighbouring frames (pixels the
+    pair's dominant two-view geometry does not explain) and take no COLMAP features there. Off by default:
+    on the rendered test clip with known cameras it made the poses worse (centre error 0.0051 against
+    0.0034), as it masks few of the moving pixels and some still ones (docs/results/registration.md)."""
     flow: bool = True
     """Compute optical flow and motion masks at the quick look's scale into flow/<k>x (see `data flow`);
     --no-flow skips it (`data flow SCENE` adds it later)."""
@@ -212,11 +225,13 @@ def quick_look_commands(out: Path, size: tuple[int, int]) -> list[str]:
 def _capture(args: CaptureArgs, source: Path, video: bool, fps: float | None = None, frames: int | None = None) -> int:
     from liquidgs.data.capture import CaptureSettings, capture_scene
 
-    if args.flow:
+    if args.flow or (args.mask_moving and args.mask_dynamic is None):
         import_cv2()  # fail before any work when it is missing
     from liquidgs.data.video import check_sampling
 
     check_sampling(fps, frames, args.max_size)
+    if args.deadline < 1:
+        raise ConfigError(f"--deadline must be at least 1 second, got {args.deadline}")
     if args.threads == 0 or args.threads < -1:
         raise ConfigError(f"--threads must be -1 (all cores) or a positive count, got {args.threads}")
     import_pycolmap()  # fail before any work when it is missing
@@ -226,9 +241,10 @@ def _capture(args: CaptureArgs, source: Path, video: bool, fps: float | None = N
         max_size=args.max_size,
         holdout_every=args.holdout_every,
         mask_dir=args.mask_dynamic,
-        solve=SolveOptions(matcher=args.matcher, threads=args.threads),
+        solve=SolveOptions(matcher=args.matcher, mapper=args.mapper, threads=args.threads, deadline=args.deadline),
         keep_distortion=args.keep_distortion,
         flow=args.flow,
+        mask_moving=args.mask_moving,
     )
     with StageLog(Console(), f"data {'video' if video else 'images'}") as log:
         summary = capture_scene(source, args.out, settings, log, video=video)
@@ -237,7 +253,6 @@ def _capture(args: CaptureArgs, source: Path, video: bool, fps: float | None = N
         + (f" ({len(summary.dropped)} dropped, listed in capture.json)" if summary.dropped else "")
         + f", mean reprojection error {summary.mean_reprojection_error_px:.2f} px, {summary.points} points"
     )
-    print("time: " + ", ".join(f"{stage} {value:.1f} s" for stage, value in summary.seconds.items()))
     print(f"scene: {args.out} (check it with: liquidgs data check {args.out})")
     print(f"train: liquidgs train --data {args.out} --field mlp --preset nerfds")
     print("\n".join(quick_look_commands(args.out, summary.image_size)))

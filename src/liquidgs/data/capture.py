@@ -14,7 +14,6 @@ from __future__ import annotations
 import copy
 import os
 import shutil
-import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -30,7 +29,7 @@ from liquidgs.data.colmap import (
     solve_cameras,
     undistorters,
 )
-from liquidgs.data.flow import compute_scene_flow
+from liquidgs.data.flow import compute_scene_flow, two_view_motion_masks
 from liquidgs.data.nerfies import (
     CAMERA_FOLDER,
     DATASET_FILE,
@@ -42,10 +41,12 @@ from liquidgs.data.nerfies import (
     camera_path,
     rgb_folder,
 )
+from liquidgs.data.stage_times import StageTimes
 from liquidgs.data.validate import open_image
 from liquidgs.data.video import (
     SIDE_MULTIPLE,
     ExtractedFrame,
+    check_changes,
     collect_image_frames,
     crop_to_multiple,
     extract_video_frames,
@@ -74,6 +75,8 @@ class CaptureSettings:
     """Write the frames as decoded, with COLMAP's k1 in the camera files (trained as if pinhole)."""
     flow: bool = True
     """Optical flow and motion masks (data.flow) at the training scale (training_downscale)."""
+    mask_moving: bool = False
+    """Without mask_dir: no features where data.flow's two-view motion masks see motion."""
 
 
 TRAINING_SIDE = 128
@@ -112,10 +115,17 @@ class CaptureSummary:
     matcher: str
     """The matcher of the attempt whose model is used."""
     masked: bool
+    feature_masks: str
+    """What kept features off moving things: "mask-dynamic" (the user's masks), "flow" (two-view motion
+    masks) or "none"."""
     camera_solve: dict
-    """Which attempt's model is used ("attempt") and every attempt made ("attempts": name, matcher,
-    changes, result: "used" or the refusal, seconds)."""
+    """Which attempt's model is used ("attempt"), every attempt made ("attempts": name, matcher, mapper,
+    changes, result: "used", "usable" or the refusal, warnings, seconds) and the used model's
+    plausibility warnings ("warnings")."""
     seconds: dict[str, float]
+    """Wall seconds per stage: extraction, features, matching, mapping, undistortion, writing, flow."""
+    cpu_seconds: dict[str, float]
+    """CPU seconds per stage (every thread, and ffmpeg's): the work, where wall time includes waiting."""
 
 
 def refuse_taken(out: Path) -> None:
@@ -133,52 +143,60 @@ def capture_scene(source: Path, out: Path, settings: CaptureSettings, log: Log, 
         raise DataError(settings.mask_dir, "--mask-dynamic: mask folder not found")
 
     def build(building: Path) -> CaptureSummary:
-        summary = _build(source, building, settings, log, video=video)
+        times = StageTimes()
+        summary = _build(source, building, settings, log, times, video=video)
         summary.out = str(out)
         if settings.flow:
-            flow = compute_scene_flow(building, training_downscale(summary.image_size), log)
-            summary.seconds["flow"] = flow.seconds
+            with times.stage("flow"):
+                compute_scene_flow(building, training_downscale(summary.image_size), log)
+        recorded = times.record()
+        summary.seconds, summary.cpu_seconds = recorded["wall"], recorded["cpu"]
+        log(f"time: {times.line()}")
         write_json_atomic(building / CAPTURE_FILE, asdict(summary))
         return summary
 
     return build_atomically(out, build)
 
 
-def _build(source: Path, scene: Path, settings: CaptureSettings, log: Log, *, video: bool) -> CaptureSummary:
-    seconds: dict[str, float] = {}
+def _build(
+    source: Path, scene: Path, settings: CaptureSettings, log: Log, times: StageTimes, *, video: bool
+) -> CaptureSummary:
     work = scene / ".work"
     frames_dir = work / "frames"
     frames_dir.mkdir(parents=True)
 
-    started = time.perf_counter()
-    if video:
-        frames = extract_video_frames(
-            source, frames_dir, fps=settings.fps, frames=settings.frames, max_size=settings.max_size, log=log
-        )
-    else:
-        frames = collect_image_frames(source, frames_dir, max_size=settings.max_size, log=log)
+    with times.stage("extraction"):
+        if video:
+            frames = extract_video_frames(
+                source, frames_dir, fps=settings.fps, frames=settings.frames, max_size=settings.max_size, log=log
+            )
+        else:
+            frames = collect_image_frames(source, frames_dir, max_size=settings.max_size, log=log)
     if len(frames) < 2:
         raise DataError(source, f"gives {len(frames)} frame; a scene needs at least 2")
-    seconds["extraction"] = time.perf_counter() - started
+    check_changes(source, frames_dir, frames)
 
     mask_dir = None
     if settings.mask_dir is not None:
         mask_dir = work / "masks"
         _colmap_masks(settings.mask_dir, frames, mask_dir, log)
+    elif settings.mask_moving:
+        mask_dir = work / "masks"
+        with times.stage("feature masks"):
+            _flow_masks(frames, frames_dir, mask_dir, log)
 
-    started = time.perf_counter()
     names = [f"{frame.id}.png" for frame in frames]
     solved = solve_cameras(frames_dir, names, work, settings.solve, log, mask_dir=mask_dir)
-    seconds["colmap"] = time.perf_counter() - started
+    times.merge(solved.times)
+    for warning in solved.warnings:
+        log(f"warning: {warning}")
 
-    started = time.perf_counter()
-    summary = _write_scene(scene, frames, frames_dir, solved.model, settings, log)
+    summary = _write_scene(scene, frames, frames_dir, solved.model, settings, log, times)
     summary.matcher = solved.matcher
-    summary.camera_solve = {"attempt": solved.attempt, "attempts": solved.attempts}
-    shutil.rmtree(work)
-    seconds["writing"] = time.perf_counter() - started
+    summary.camera_solve = {"attempt": solved.attempt, "attempts": solved.attempts, "warnings": solved.warnings}
+    with times.stage("writing"):
+        shutil.rmtree(work)
     summary.source = str(source)
-    summary.seconds = {stage: round(value, 2) for stage, value in seconds.items()}
     return summary
 
 
@@ -213,6 +231,24 @@ def _colmap_masks(user_dir: Path, frames: list[ExtractedFrame], mask_dir: Path, 
     )
 
 
+def _flow_masks(frames: list[ExtractedFrame], frames_dir: Path, mask_dir: Path, log: Log) -> None:
+    """COLMAP masks (zero = no features) of what moves, from flow at the training scale (two_view_motion_masks)."""
+    mask_dir.mkdir()
+    images = []
+    for frame in frames:
+        with Image.open(frames_dir / f"{frame.id}.png") as decoded:
+            full_size = decoded.size
+            images.append(np.asarray(decoded.convert("RGB").reduce(training_downscale(full_size))))
+    masks = two_view_motion_masks(images, log)
+    for frame, moving in zip(frames, masks):
+        full = Image.fromarray(np.where(moving, 0, 255).astype(np.uint8)).resize(full_size, Image.Resampling.NEAREST)
+        full.save(mask_dir / f"{frame.id}.png.png")
+    log(
+        f"feature masks: {100 * np.mean([mask.mean() for mask in masks]):.1f}% of pixels seen moving on average "
+        "(no features there)"
+    )
+
+
 def _write_scene(
     scene: Path,
     frames: list[ExtractedFrame],
@@ -220,7 +256,15 @@ def _write_scene(
     model,
     settings: CaptureSettings,
     log: Log,
+    times: StageTimes,
 ) -> CaptureSummary:
+    """The scene's files from the model; the lens's undistortion (camera and image warps) is timed as
+    "undistortion", the rest as "writing"."""
+    with times.stage("writing"):
+        return _write_files(scene, frames, frames_dir, model, settings, log, times)
+
+
+def _write_files(scene, frames, frames_dir, model, settings, log, times: StageTimes) -> CaptureSummary:
     by_name = {image.name: image for image in model.images.values() if image.has_pose}
     registered = [frame for frame in frames if f"{frame.id}.png" in by_name]
     dropped = [{"id": frame.id, "source": frame.source} for frame in frames if f"{frame.id}.png" not in by_name]
@@ -234,7 +278,8 @@ def _write_scene(
     lens = {camera_id: copy.copy(model.cameras[camera_id]) for camera_id in sorted(used)}
     undistort: dict[int, Undistorter] = {}
     if not settings.keep_distortion:
-        undistort = dict(zip(lens, undistorters(list(lens.values()), SIDE_MULTIPLE)))
+        with times.stage("undistortion"):
+            undistort = dict(zip(lens, undistorters(list(lens.values()), SIDE_MULTIPLE)))
         for camera_id, undistorter in undistort.items():
             before, after = describe_camera(lens[camera_id]), describe_camera(undistorter.pinhole)
             log(f"undistortion: {before} -> {after}, cropped to valid pixels")
@@ -252,7 +297,11 @@ def _write_scene(
         write_json_atomic(camera_path(scene, frame.id), camera_json(_nerfies_camera(camera, rotation, position)))
         source = frames_dir / f"{frame.id}.png"
         with Image.open(source) as decoded:
-            full = Image.fromarray(undistorter.image(np.asarray(decoded.convert("RGB")))) if undistorter else decoded
+            if undistorter:
+                with times.stage("undistortion"):
+                    full = Image.fromarray(undistorter.image(np.asarray(decoded.convert("RGB"))))
+            else:
+                full = decoded
             for factor in SCALES[1:]:
                 full.reduce(factor).save(rgb_folder(scene, factor) / source.name, format="PNG")
             if undistorter:
@@ -312,8 +361,10 @@ def _write_scene(
         undistortion=_undistortion_record(lens, undistort),
         matcher=settings.solve.matcher,
         masked=settings.mask_dir is not None,
+        feature_masks="mask-dynamic" if settings.mask_dir else ("flow" if settings.mask_moving else "none"),
         camera_solve={},
         seconds={},
+        cpu_seconds={},
     )
 
 

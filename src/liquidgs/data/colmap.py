@@ -2,9 +2,14 @@
 and COLMAP's own undistortion of images into a pinhole camera.
 
 One shared SIMPLE_RADIAL camera (a video has one lens and one zoom), SIFT features, sequential
-or exhaustive matching, incremental mapping; the largest model is kept. When it gives no usable
-model, the solve is tried again with every pair of frames matched, then with a relaxed initial
-pair (`solve_attempts`); each attempt and the one that succeeded are logged and returned.
+or exhaustive matching, then COLMAP's global mapper (GLOMAP's: rotation averaging, then every
+position at once; seconds where incremental mapping takes minutes) or its incremental mapper; the
+largest model is kept. When an attempt gives no usable model, the next is tried (`solve_attempts`):
+the incremental mapper on the same matches, every pair of frames matched, then a relaxed initial
+pair. A global model that passes COLMAP's checks but not the phone-camera checks of
+data.plausibility is compared with the incremental mapper's on the same matches, and the one with
+fewer warnings is used (the incremental one on a tie). Each attempt's mapping has a deadline; each
+attempt, its seconds and the one used are logged and returned.
 
 Undistortion (`undistorters`): pycolmap.undistort_camera / undistort_image with COLMAP's default
 options. blank_pixels = 0 means the border is cropped: the pinhole image keeps the focal length
@@ -25,12 +30,15 @@ from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 
+from liquidgs.data.plausibility import MIN_POINTS_PER_FRAME, model_warnings
+from liquidgs.data.stage_times import StageTimes
 from liquidgs.errors import LiquidGSError
 
 if TYPE_CHECKING:
     import pycolmap
 
 Matcher = Literal["sequential", "exhaustive"]
+MapperKind = Literal["global", "incremental"]
 CAMERA_MODEL = "SIMPLE_RADIAL"
 # With COLMAP's quadratic overlap (its default) each frame is matched with the 1st, 2nd, 4th, 8th, ...
 # frame after it, 2^0 to 2^(overlap - 1) ahead: 25 pairs for 10 frames, 237 for 50 (measured).
@@ -42,11 +50,16 @@ MIN_REGISTERED_SHARE = 0.5
 MIN_REGISTERED_SHARE_RELAXED = 0.9
 MIN_REGISTERED_FRAMES = 4
 MIN_POINTS = 20  # fewer triangulated points than this: no usable geometry
-# A registered frame sees fewer points than this (the median frame): no usable geometry. COLMAP's
-# own default for registering a frame (abs_pose_min_num_inliers).
-MIN_POINTS_PER_FRAME = 30
 # COLMAP drops observations above 4 px; a model whose mean is still above this has not settled.
 MAX_MEAN_REPROJECTION_ERROR = 2.0
+GLOBAL_TRACKS_PER_VIEW = 300
+"""The global mapper positions the cameras from enough tracks to give each frame this many (COLMAP's
+track_required_tracks_per_view; its default keeps every track), then triangulates every match: on the
+apple clip (50 frames, 10,483 tracks) its global positioning took 2 s instead of 82 s, the whole
+mapping 14 s instead of 118 s, and the poses moved by 0.02% of the path (measured, docs/results/registration.md)."""
+DEADLINE_SECONDS = 600
+"""Each attempt's mapping stops after this long (COLMAP's max_runtime_seconds for the incremental
+mapper; for the global one, which has no such option, its bundle adjustment's time limit)."""
 SEED = 0
 
 Log = Callable[[str], None]
@@ -71,8 +84,12 @@ class SolveError(LiquidGSError):
 @dataclass
 class SolveOptions:
     matcher: Matcher = "sequential"
+    mapper: MapperKind = "global"
+    """The first attempt's mapper; the incremental one is always the fallback."""
     threads: int = -1
     """CPU threads for COLMAP; -1 uses every core."""
+    deadline: int = DEADLINE_SECONDS
+    """Seconds each attempt's mapping may take."""
 
 
 class NoDepthError(SolveError):
@@ -83,7 +100,7 @@ class NoDepthError(SolveError):
 
 @dataclass(frozen=True)
 class Attempt:
-    """One try at the camera solve: a matcher and COLMAP mapper options changed from its defaults."""
+    """One try at the camera solve: a matcher, a mapper, and COLMAP mapper options changed from its defaults."""
 
     name: str
     matcher: Matcher
@@ -93,6 +110,7 @@ class Attempt:
     """IncrementalMapperOptions values that differ from COLMAP's defaults."""
     min_registered_share: float = MIN_REGISTERED_SHARE
     """The share of the frames its model must register to be used."""
+    kind: MapperKind = "incremental"
 
 
 # COLMAP itself starts from an initial pair with at least 100 inlier matches seen at 16 degrees or
@@ -102,10 +120,12 @@ class Attempt:
 RELAXED_INITIAL_PAIR = {"init_min_num_inliers": 50, "init_min_tri_angle": 8.0}
 
 
-def solve_attempts(matcher: Matcher) -> list[Attempt]:
+def solve_attempts(matcher: Matcher, mapper: MapperKind = "global") -> list[Attempt]:
     """The attempts in the order they are tried, each only when the one before gave no usable model:
-    more frame pairs first (COLMAP's own thresholds on more data), then a lower bar for the start."""
-    default = Attempt("default", matcher, f"{matcher} matching, COLMAP's mapper defaults")
+    the global mapper (when it is the choice), the incremental mapper on the same pairs, more frame
+    pairs (COLMAP's own thresholds on more data), then a lower bar for the start."""
+    first = "incremental mapper" if mapper == "global" else "default"
+    default = Attempt(first, matcher, f"{matcher} matching, COLMAP's incremental mapper with its defaults")
     exhaustive = Attempt("exhaustive matching", "exhaustive", "every pair of frames matched, COLMAP's mapper defaults")
     relaxed = Attempt(
         "relaxed initial pair",
@@ -115,7 +135,14 @@ def solve_attempts(matcher: Matcher) -> list[Attempt]:
         RELAXED_INITIAL_PAIR,
         MIN_REGISTERED_SHARE_RELAXED,
     )
-    return [default, relaxed] if matcher == "exhaustive" else [default, exhaustive, relaxed]
+    attempts = [default, relaxed] if matcher == "exhaustive" else [default, exhaustive, relaxed]
+    if mapper == "global":
+        glomap = Attempt(
+            "global mapper", matcher, f"{matcher} matching, COLMAP's global mapper (rotation averaging, then "
+            "every camera position at once)", kind="global",
+        )  # fmt: skip
+        attempts.insert(0, glomap)
+    return attempts
 
 
 @dataclass
@@ -126,7 +153,11 @@ class Solved:
     matcher: Matcher
     """That attempt's matcher."""
     attempts: list[dict]
-    """Every attempt made, in order: name, matcher, changes, result ("used" or the refusal), seconds."""
+    """Every attempt made, in order: name, matcher, mapper, changes, result ("used" or the refusal), seconds."""
+    times: StageTimes
+    """Seconds of features, matching and mapping (summed over attempts)."""
+    warnings: list[str]
+    """data.plausibility's warnings about the model used."""
 
 
 @contextmanager
@@ -148,8 +179,8 @@ def solve_cameras(
     log: Log,
     mask_dir: Path | None = None,
 ) -> Solved:
-    """Features, then the attempts of solve_attempts (matching, incremental mapping, check_model)
-    until one gives a usable model; the largest model of that attempt.
+    """Features, then the attempts of solve_attempts (matching, mapping, check_model) until one gives
+    a usable model; the largest model of that attempt.
 
     mask_dir holds COLMAP masks (<name>.png, features on zero pixels are dropped) or is None; the
     features, so the masks, are the same for every attempt. Refuses with one SolveError when no
@@ -159,14 +190,17 @@ def solve_cameras(
     pycolmap = import_pycolmap()
     database_path = work_dir / "database.db"
     total = len(image_names)
+    times = StageTimes()
     with _quiet_colmap(pycolmap):
         pycolmap.set_random_seed(SEED)
-        _extract_features(pycolmap, database_path, frames_dir, image_names, options, log, mask_dir)
-        attempts = solve_attempts(options.matcher)
+        with times.stage("features"):
+            _extract_features(pycolmap, database_path, frames_dir, image_names, options, log, mask_dir)
+        attempts = solve_attempts(options.matcher, options.mapper)
         records: list[dict] = []
         failures: list[SolveError] = []
         # Each matcher runs once: a later attempt with the same matcher reuses its pairs, or its refusal.
         matching: dict[Matcher, SolveError | None] = {}
+        held: tuple[str, pycolmap.Reconstruction, list[str]] | None = None  # a global model with warnings
         for number, attempt in enumerate(attempts, 1):
             label = f"attempt {number} of {len(attempts)} ({attempt.name})"
             log(f"{label}: {attempt.changes}")
@@ -174,34 +208,117 @@ def solve_cameras(
             try:
                 if attempt.matcher not in matching:
                     try:
-                        _match(pycolmap, database_path, attempt.matcher, total, options, log)
+                        with times.stage("matching"):
+                            _match(pycolmap, database_path, attempt.matcher, total, options, log)
                         matching[attempt.matcher] = None
                     except SolveError as error:
                         matching[attempt.matcher] = error
                 if matching[attempt.matcher] is not None:
                     raise matching[attempt.matcher]
-                model = _map(pycolmap, database_path, frames_dir, work_dir / f"sparse-{number}", attempt, total,
-                             options, log)  # fmt: skip
-                check_model(model, total, attempt.min_registered_share)
+                with times.stage("mapping"):
+                    model, stopped = _map(pycolmap, database_path, frames_dir, work_dir / f"sparse-{number}",
+                                          attempt, total, options, log)  # fmt: skip
+                try:
+                    check_model(model, total, attempt.min_registered_share)
+                except SolveError as error:
+                    if stopped:  # what failed was time: say so, and how to give more
+                        raise type(error)(f"{error} (its mapping was stopped at the deadline of {options.deadline} "
+                                          "s; --deadline SECONDS gives it longer)") from None  # fmt: skip
+                    raise
+                if stopped and model.num_reg_images() < total:  # cut short: frames COLMAP had not reached yet
+                    raise SolveError(
+                        f"COLMAP's mapping was stopped at the deadline of {options.deadline} s with "
+                        f"{model.num_reg_images()} of {total} frames registered; --deadline SECONDS gives it longer"
+                    )
+                if total - model.num_reg_images() >= MIN_REGISTERED_FRAMES:
+                    _refuse_cut(database_path, image_names, "")
             except SolveError as error:
                 failures.append(error)
                 records.append(_record(attempt, str(error), started))
                 log(f"{label} refused: {error}")
+                if held is not None:  # the global model was usable: it stays the answer
+                    log(f"camera solve: the {held[0]}'s model is kept ({len(held[2])} warning(s); {label} refused)")
+                    return _solved(held[1], attempts[0], records, times, held[2])
+                if number < len(attempts):
+                    log(f"next: attempt {number + 1} of {len(attempts)} will try {attempts[number].changes}")
                 continue
-            records.append(_record(attempt, "used", started))
-            log(f"camera solve: {label} succeeded")
-            return Solved(model, attempt.name, attempt.matcher, records)
+            warnings = model_warnings(model)
+            records.append(_record(attempt, "usable", started, warnings))
+            if held is not None:
+                held_label, held_model, held_warnings = held  # the global mapper's: always attempts[0]
+                if len(warnings) <= len(held_warnings):  # a tie goes to the incremental mapper, the tried one
+                    log(f"camera solve: {label} is used: {len(warnings)} warning(s) against the "
+                        f"{held_label}'s {len(held_warnings)}")  # fmt: skip
+                    return _solved(model, attempt, records, times, warnings)
+                log(f"camera solve: the {held_label}'s model is kept ({len(held_warnings)} warning(s) against "
+                    f"{len(warnings)} of {label})")  # fmt: skip
+                return _solved(held_model, attempts[0], records, times, held_warnings)
+            if attempt.kind == "global" and warnings and number < len(attempts):
+                for warning in warnings:
+                    log(f"{label}: warning: {warning}")
+                log(f"camera solve: the global mapper's model is usable but has {len(warnings)} warning(s); "
+                    f"comparing it with attempt {number + 1} of {len(attempts)} ({attempts[number].name}) on the "
+                    "same matches")  # fmt: skip
+                held = (attempt.name, model, warnings)
+                continue
+            reason = (
+                "the global mapper solved it (seconds where the incremental mapper takes minutes)"
+                if attempt.kind == "global"
+                else "the incremental mapper solved it"
+            )
+            log(f"camera solve: {label} succeeded; {reason}")
+            return _solved(model, attempt, records, times, warnings)
     cause = next((failure for failure in failures if isinstance(failure, NoDepthError)), failures[-1])
     tried = ", ".join(record["name"] for record in records)
+    _refuse_cut(database_path, image_names, f" [COLMAP tried: {tried}]")
     raise type(cause)(f"{cause} [COLMAP tried: {tried}]")
 
 
-def _record(attempt: Attempt, result: str, started: float) -> dict:
+def _refuse_cut(database_path: Path, image_names: list[str], suffix: str) -> None:
+    cut = cut_in(database_path, image_names)
+    if cut is not None:
+        before, after = cut
+        raise SolveError(
+            f"no frame up to {before} shares verified matches with any frame from {after} on: the clip seems "
+            f"to have a cut (two shots) there; register each shot on its own{suffix}"
+        )
+
+
+def cut_in(database_path: Path, image_names: list[str]) -> tuple[str, str] | None:
+    """(last frame before, first frame after) the first place in time order that no geometrically verified
+    pair of the database crosses, with at least MIN_REGISTERED_FRAMES frames on each side; None when every
+    place is crossed. (The database keeps only verified pairs, so a pair never compared and a pair compared
+    in vain look alike: a cut is only refused once a model leaves the frames past it out.)"""
+    pycolmap = import_pycolmap()
+    with pycolmap.Database.open(database_path) as database:
+        order = {image.image_id: image_names.index(image.name) for image in database.read_all_images()}
+        pair_ids, inliers = database.read_two_view_geometry_num_inliers()
+    crossing = np.zeros(len(image_names) + 1, int)  # verified pairs spanning the gap before each frame
+    for pair_id, count in zip(pair_ids, inliers):
+        if count > 0:
+            first, second = sorted(order[i] for i in pycolmap.pair_id_to_image_pair(pair_id))
+            crossing[first + 1 : second + 1] += 1
+    for gap in range(MIN_REGISTERED_FRAMES, len(image_names) - MIN_REGISTERED_FRAMES + 1):
+        if crossing[gap] == 0:
+            return image_names[gap - 1].rsplit(".", 1)[0], image_names[gap].rsplit(".", 1)[0]
+    return None
+
+
+def _solved(model, attempt: Attempt, records: list[dict], times: StageTimes, warnings: list[str]) -> Solved:
+    for record in records:
+        if record["name"] == attempt.name:
+            record["result"] = "used"
+    return Solved(model, attempt.name, attempt.matcher, records, times, warnings)
+
+
+def _record(attempt: Attempt, result: str, started: float, warnings: list[str] | None = None) -> dict:
     return {
         "name": attempt.name,
         "matcher": attempt.matcher,
+        "mapper": attempt.kind,
         "changes": attempt.changes,
         "result": result,
+        "warnings": warnings or [],
         "seconds": round(time.perf_counter() - started, 2),
     }
 
@@ -274,27 +391,39 @@ def _match(pycolmap, database_path: Path, matcher: Matcher, total: int, options:
 
 
 def _map(pycolmap, database_path: Path, frames_dir: Path, sparse_dir: Path, attempt: Attempt, total: int,
-         options: SolveOptions, log: Log) -> pycolmap.Reconstruction:  # fmt: skip
-    """COLMAP's incremental mapping with the attempt's mapper options; the largest model."""
+         options: SolveOptions, log: Log) -> tuple[pycolmap.Reconstruction, bool]:  # fmt: skip
+    """COLMAP's global or incremental mapping with the attempt's options, under the deadline: the largest
+    model, and whether the deadline stopped it."""
     started = time.perf_counter()
-    mapping = pycolmap.IncrementalPipelineOptions()
-    mapping.num_threads = options.threads
-    mapping.random_seed = SEED
-    for name, value in attempt.mapper.items():
-        setattr(mapping.mapper, name, value)
-    registered = [0]
-
-    def next_image() -> None:
-        registered[0] += 1
-        if registered[0] % 10 == 0:
-            log(f"mapping: {registered[0] + 2} frames registered ...")
-
     sparse_dir.mkdir()
-    models = pycolmap.incremental_mapping(
-        database_path, frames_dir, sparse_dir, options=mapping, next_image_callback=next_image
-    )
+    if attempt.kind == "global":
+        mapping = pycolmap.GlobalPipelineOptions()
+        mapping.num_threads = options.threads
+        mapping.random_seed = SEED
+        mapping.mapper.bundle_adjustment.ceres.solver_options.max_solver_time_in_seconds = float(options.deadline)
+        mapping.mapper.track_required_tracks_per_view = GLOBAL_TRACKS_PER_VIEW
+        models = pycolmap.global_mapping(database_path, frames_dir, sparse_dir, options=mapping)
+    else:
+        mapping = pycolmap.IncrementalPipelineOptions()
+        mapping.num_threads = options.threads
+        mapping.random_seed = SEED
+        mapping.max_runtime_seconds = options.deadline
+        for name, value in attempt.mapper.items():
+            setattr(mapping.mapper, name, value)
+        registered = [0]
+
+        def next_image() -> None:
+            registered[0] += 1
+            if registered[0] % 10 == 0:
+                log(f"mapping: {registered[0] + 2} frames registered ...")
+
+        models = pycolmap.incremental_mapping(
+            database_path, frames_dir, sparse_dir, options=mapping, next_image_callback=next_image
+        )
+    seconds = time.perf_counter() - started
+    late = f"; stopped at its deadline of {options.deadline} s" if seconds >= options.deadline else ""
     if not models:
-        log(f"mapping: no model ({time.perf_counter() - started:.1f} s)")
+        log(f"mapping ({attempt.kind}): no model ({seconds:.1f} s{late})")
         raise SolveError(
             f"COLMAP could not start a model from any two of the {total} frames (too little "
             "parallax or texture); move the camera sideways rather than only turning it, or film a "
@@ -302,10 +431,10 @@ def _map(pycolmap, database_path: Path, frames_dir: Path, sparse_dir: Path, atte
         )
     model = max(models.values(), key=lambda m: (m.num_reg_images(), m.num_points3D()))
     log(
-        f"mapping: {len(models)} model(s); the largest has {model.num_reg_images()} of {total} "
-        f"frames and {model.num_points3D()} points ({time.perf_counter() - started:.1f} s)"
+        f"mapping ({attempt.kind}): {len(models)} model(s); the largest has {model.num_reg_images()} of {total} "
+        f"frames and {model.num_points3D()} points ({seconds:.1f} s{late})"
     )
-    return model
+    return model, bool(late)
 
 
 def check_model(model: pycolmap.Reconstruction, total: int, min_share: float = MIN_REGISTERED_SHARE) -> None:

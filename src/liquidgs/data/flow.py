@@ -16,6 +16,11 @@ For a scene in the Nerfies layout (what `data video` / `data images` write), at 
   weight-free motion mask, with no network. What it cannot see: motion along the epipolar line
   (a subject moving the way the camera slides), and motion on textureless surfaces.
 
+Before any cameras exist (`two_view_motion_masks`, for keeping COLMAP's features off moving things),
+the same masks are made from frames alone: the cameras' motion is replaced by the dominant two-view
+geometry of each pair, fitted to the flow by RANSAC (a fundamental matrix, or a homography where one
+explains the flow), so what moves is what the pair's dominant motion does not explain.
+
 Layout, in the scene folder:
 
     flow/<k>x/flow.json          FLOW_FORMAT: size, preset, threshold, the pairs, and the SHA-256 of
@@ -72,6 +77,12 @@ FRAME_STEP = 3
 """A frame's mask compares it with the train frames this many train frames before and after it:
 between neighbouring frames a slow subject (the cat's head) moves less than the cameras' error."""
 MIN_TRAIN_FRAMES = 2
+GEOMETRY_SAMPLE_STEP = 4
+"""Before cameras exist, the two-view geometry is fitted to the flow at every 4th pixel both ways."""
+MIN_GEOMETRY_SAMPLES = 16
+HOMOGRAPHY_SHARE = 0.9
+"""A homography that explains this share of a pair's flow is its geometry (a fundamental matrix is
+then ill-posed: a turn, a still camera, a flat scene)."""
 
 Log = Callable[[str], None]
 
@@ -151,11 +162,79 @@ def camera_motion_error(flow: np.ndarray, cam_a: Camera, cam_b: Camera, depth: f
     skew = np.array([[0.0, -translation[2], translation[1]], [translation[2], 0.0, -translation[0]],
                      [-translation[1], translation[0], 0.0]])  # fmt: skip
     fundamental = np.linalg.inv(k_b).T @ skew @ rotation @ np.linalg.inv(k_a)
+    return sampson_distance(x_a, x_b, fundamental)
+
+
+def sampson_distance(x_a: np.ndarray, x_b: np.ndarray, fundamental: np.ndarray) -> np.ndarray:
+    """The Sampson distance (pixels) of homogeneous pixel pairs x_a -> x_b [..., 3] from the epipolar
+    geometry `fundamental` (x_b^T F x_a = 0): float32 [...]."""
     line_b = x_a @ fundamental.T  # F x_a: the epipolar line in b
     line_a = x_b @ fundamental  # F^T x_b
     residual = (x_b * line_b).sum(-1)
     norm = line_b[..., 0] ** 2 + line_b[..., 1] ** 2 + line_a[..., 0] ** 2 + line_a[..., 1] ** 2
     return np.sqrt(residual**2 / np.maximum(norm, 1e-12)).astype(np.float32)
+
+
+def two_view_error(flow: np.ndarray, valid: np.ndarray) -> np.ndarray | None:
+    """How far, in pixels of b, each pixel's flow from a to b lands from the dominant two-view geometry
+    of the pair, with no cameras: a homography where one explains HOMOGRAPHY_SHARE of the flow (a turn,
+    a still camera, a flat scene), else a fundamental matrix; each fitted by RANSAC (at
+    MOTION_THRESHOLD_PX) to the `valid` flow every GEOMETRY_SAMPLE_STEP pixels. float32 [H, W], or
+    None when too few valid flow vectors are left to fit either."""
+    cv2 = import_cv2()
+    height, width = flow.shape[:2]
+    gx, gy = _pixel_grid(height, width)
+    x_a = np.stack([gx + 0.5, gy + 0.5, np.ones_like(gx)], axis=-1).astype(np.float64)
+    x_b = x_a.copy()
+    x_b[..., :2] += flow
+    sample = np.zeros_like(valid)
+    sample[::GEOMETRY_SAMPLE_STEP, ::GEOMETRY_SAMPLE_STEP] = True
+    sample &= valid
+    if sample.sum() < MIN_GEOMETRY_SAMPLES:
+        return None
+    from_a, to_b = x_a[sample][:, :2], x_b[sample][:, :2]
+    homography, inliers = cv2.findHomography(from_a, to_b, cv2.RANSAC, MOTION_THRESHOLD_PX)
+    if homography is not None and inliers.mean() >= HOMOGRAPHY_SHARE:
+        predicted = x_a @ homography.T
+        predicted = predicted[..., :2] / predicted[..., 2:3]
+        return np.linalg.norm(x_b[..., :2] - predicted, axis=-1).astype(np.float32)
+    fundamental, _ = cv2.findFundamentalMat(from_a, to_b, cv2.FM_RANSAC, MOTION_THRESHOLD_PX, 0.999)
+    if fundamental is None or fundamental.shape != (3, 3):
+        return None
+    return sampson_distance(x_a, x_b, fundamental)
+
+
+def two_view_motion_masks(images: list[np.ndarray], log: Log | None = None) -> list[np.ndarray]:
+    """Motion masks of frames in time order (uint8 RGB [H, W, 3], one size) before any cameras exist,
+    for keeping features off moving things: as the scene's masks (motion_mask over the textured
+    pixels, the frames FRAME_STEP before and after), with two_view_error in place of the cameras'
+    motion. bool [H, W] per frame, True where moving."""
+    flows: dict[tuple[int, int], np.ndarray] = {}
+
+    def flow_of(a: int, b: int) -> np.ndarray:
+        if (a, b) not in flows:
+            flows[(a, b)] = optical_flow(images[a], images[b])
+        return flows[(a, b)]
+
+    last = len(images) - 1
+    masks = []
+    for index, image in enumerate(images):
+        neighbours = sorted({max(0, index - FRAME_STEP), min(last, index + FRAME_STEP)} - {index})
+        errors = []
+        for other in neighbours:
+            forward, backward = flow_of(index, other), flow_of(other, index)
+            valid = consistent(forward, backward)
+            error = two_view_error(forward, valid & textured(image))
+            if error is not None:
+                errors.append((error, valid))
+        masks.append(motion_mask(errors, textured(image)))
+        for other in neighbours:
+            if other < index:  # no later frame needs this pair again
+                flows.pop((index, other), None)
+                flows.pop((other, index), None)
+        if log is not None and ((index + 1) % 25 == 0 or index == last):
+            log(f"feature masks: {index + 1}/{len(images)} frames")
+    return masks
 
 
 def textured(image: np.ndarray) -> np.ndarray:

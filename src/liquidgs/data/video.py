@@ -188,6 +188,32 @@ def _check_count(source: Path, frames: list[ExtractedFrame], remedy: str) -> Non
         )
 
 
+STILL_LEVELS = 1.0
+"""Neighbouring frames whose mean absolute difference is under this many grey levels show the same picture."""
+
+
+def check_changes(source: Path, frames_dir: Path, frames: list[ExtractedFrame]) -> None:
+    """Refuse frames that are all one picture (a still image repeated): nothing for COLMAP to solve. A blank
+    picture is left to COLMAP, whose refusal (no features) says what to film instead."""
+    largest = 0.0
+    previous = None
+    for frame in frames:
+        with Image.open(frames_dir / f"{frame.id}.png") as decoded:
+            current = np.asarray(decoded.convert("L"), dtype=np.int16)
+        if previous is None and current.std() < STILL_LEVELS:
+            return
+        if previous is not None:
+            largest = max(largest, float(np.abs(current - previous).mean()))
+            if largest >= STILL_LEVELS:
+                return
+        previous = current
+    raise DataError(
+        source,
+        f"its {len(frames)} frames show one still picture (neighbouring frames differ by at most {largest:.2f} "
+        "grey levels on average): a still image, not a moving camera; film while walking around the subject",
+    )
+
+
 def check_sampling(fps: float | None, frames: int | None, max_size: int) -> None:
     if fps is not None and frames is not None:
         raise ConfigError("give --fps or --frames, not both")
