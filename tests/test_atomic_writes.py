@@ -184,6 +184,7 @@ main(sys.argv[2:])
 """
 
 
+@pytest.mark.slow  # a process killed mid-export
 def test_a_killed_sequence_export_leaves_no_sequence_and_the_next_export_cleans_up(tiny_mlp_run, tmp_path):
     out, progress = tmp_path / "export", tmp_path / "frames-written"
     child = subprocess.Popen(

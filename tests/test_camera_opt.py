@@ -193,6 +193,7 @@ def test_a_refining_run_resumes_bit_exactly_and_writes_its_corrections(capture, 
     assert written["max_rotation_deg"] == max(f["rotation_deg"] for f in written["frames"]) > 0
 
 
+@pytest.mark.slow  # 300 iterations
 def test_a_run_on_noisy_poses_reports_how_far_refinement_brought_them_back(tmp_path, capsys):
     """What the stress tests' pose noise asks of refinement, inside training: on the still scene
     (nothing moves, so only the cameras can explain a view's misfit) the refined training cameras

@@ -282,6 +282,7 @@ if args[:2] == ["experiment", "run"]:  # one finished run of the cat, one unfini
 """
 
 
+@pytest.mark.slow  # COLMAP and an experiment
 def test_the_rebuild_script_downloads_registers_each_clip_and_runs_the_spec(server, monkeypatch, tmp_path):
     """scripts/real_clips.sh with the real downloader against 127.0.0.1 and `data video` / `experiment`
     played by a stub: every clip registered as the benchmark was, a refused clip said and passed over,

@@ -116,6 +116,7 @@ def test_exposure_flicker_scales_each_training_frame_and_leaves_the_test_views_c
         PerturbConfig(exposure=-0.1)
 
 
+@pytest.mark.slow  # a run long enough to learn exposures
 def test_a_run_on_flickering_frames_learns_each_frame_s_exposure(tmp_path):
     """The still scene (nothing moves: only a frame's exposure explains its colours) with each training
     frame's channels scaled by 1 + N(0, 0.15^2): the corrections in exposure.json follow the true

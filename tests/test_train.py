@@ -126,6 +126,7 @@ GLOBE_FLAGS = ["--field", "mlp", "--preset", "tiny", "--iterations", "260", "--i
                "--eval.start", "260", "--eval.fps-frames", "2", "--checkpoint-every", "50"]  # fmt: skip
 
 
+@pytest.mark.slow  # a long run through an opacity reset
 def test_opacity_reset_that_drops_psnr_by_more_than_10_db_is_not_a_divergence(globe_scene, tmp_path, monkeypatch):
     psnrs: list[float] = []
     original_step = Trainer.train_step
@@ -293,6 +294,7 @@ def test_resume_refuses_changed_settings(small_scene, tmp_path, capsys):
     assert "seed" in one_line_error(capsys)
 
 
+@pytest.mark.slow  # a real-data-path training run
 def test_real_data_path_trains_from_the_point_cloud_with_smooth_time(small_scene, tmp_path):
     """The Nerfies layout: Gaussians start from points.npy, annealed smooth training is on."""
     import numpy as np
