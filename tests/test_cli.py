@@ -71,6 +71,7 @@ def test_a_reader_that_stops_early_ends_a_progress_bar_quietly_too():
     assert child.stderr.read() == b""
 
 
+@pytest.mark.slow  # a training process of its own
 def test_training_into_a_pipe_closed_at_once_exits_141(tmp_path):
     """`liquidgs train ... 2>&1 | true`: the progress bar's stderr is the pipe whose reader has gone."""
     from liquidgs.data import generate_synthetic

@@ -278,6 +278,7 @@ def test_grid_expansion_counts_and_folders(data_root, tmp_path):
     assert read_manifest(tmp_path / "exp").runs == experiment.runs
 
 
+@pytest.mark.slow  # a training process of its own
 def test_the_run_folder_holds_the_config_the_spec_asked_for(data_root, tmp_path):
     spec = spec_from_dict(small_spec(scenes=["puppet"], fields=["sde"], lambdas=[0.1]), "s.yml")
     experiment = expand(spec, data_root, tmp_path / "exp")

@@ -219,6 +219,7 @@ def test_without_the_kernel_auto_falls_back_to_torch_with_one_line(tmp_path, env
     assert reason in lines[0] and lines[0].endswith("using the torch backend")
 
 
+@pytest.mark.slow  # compiles the kernels from scratch
 def test_the_kernel_is_built_once_into_the_cache(tmp_path):
     cache = tmp_path / "cache"
     for _ in range(2):
