@@ -154,7 +154,7 @@ def _flow_evidence(scene: Path, train: list) -> tuple[list, np.ndarray]:
     or stale is one line)."""
     if not train or train[0].image_path.parent.parent.name != RGB_FOLDER:
         raise ConfigError(f"--flow-error: {scene} is not a capture with optical flow (data flow reads captures)")
-    return read_flow_pairs(scene, image_scale(scene, train)), read_motion_masks(scene, train)
+    return read_flow_pairs(scene, image_scale(scene, train)), read_motion_masks(scene, train)[1]
 
 
 def main(argv: list[str]) -> int:

@@ -507,9 +507,9 @@ def scene_motion_masks(scene: Path, views: list[Frame]) -> Path:
     return checked_flow_folder(scene, image_scale(scene, views), "motion masks") / MASKS_FOLDER
 
 
-def read_motion_masks(scene: Path, frames: list[Frame]) -> np.ndarray:
-    """bool [F, H, W]: the motion masks of `frames` at the scale they were read at (checked first:
-    missing or stale flow is one line)."""
+def read_motion_masks(scene: Path, frames: list[Frame]) -> tuple[Path, np.ndarray]:
+    """The masks folder and bool [F, H, W]: the motion masks of `frames` at the scale they were read
+    at (checked first: missing or stale flow is one line)."""
     from PIL import Image
 
     folder = scene_motion_masks(scene, frames)
@@ -519,7 +519,7 @@ def read_motion_masks(scene: Path, frames: list[Frame]) -> np.ndarray:
         if not path.is_file():
             raise DataError(path, f"no motion mask for frame '{frame.name}'; compute them again: liquidgs data flow")
         masks.append(np.asarray(Image.open(path)) > 127)
-    return np.stack(masks)
+    return folder, np.stack(masks)
 
 
 def checked_flow_folder(scene: Path, factor: int, what: str) -> Path:

@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from liquidgs.data.flow import read_motion_masks, scene_motion_masks
+from liquidgs.data.flow import read_motion_masks
 from liquidgs.data.scene import Frame
 from liquidgs.errors import ConfigError, DataError, check_integer, check_number
 
@@ -85,8 +85,8 @@ class MotionVotes:
     def __init__(self, cfg: SplitConfig, scene: Path, frames: list[Frame], scene_extent: float, device):
         self.cfg = cfg
         self.scene_extent = scene_extent
-        self.masks = torch.from_numpy(read_motion_masks(scene, frames)).to(device)
-        folder = scene_motion_masks(scene, frames)
+        folder, masks = read_motion_masks(scene, frames)
+        self.masks = torch.from_numpy(masks).to(device)
         share = float(self.masks.float().mean())
         if share == 0.0:
             raise DataError(folder, "the motion masks hold no pixel: nothing moves for the split to find")
