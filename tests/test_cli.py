@@ -53,19 +53,19 @@ _CHILD = textwrap.dedent("""
 """)
 
 
-def test_a_reader_that_stops_early_ends_the_command_quietly():
-    # `liquidgs experiment run SPEC --dry-run | head`: the reader goes, the command stops without a word.
-    child = subprocess.Popen([sys.executable, "-c", _CHILD, "flood"], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
-    assert child.stdout.readline() == b"x" * 100 + b"\n"
-    child.stdout.close()
-    assert child.wait(timeout=60) == 141
-    assert child.stderr.read() == b""
-
-
-def test_a_reader_that_stops_early_ends_a_progress_bar_quietly_too():
-    # rich meets the gone reader by exiting 1 itself: `liquidgs experiment run SPEC | head` ends as `head` expects.
-    child = subprocess.Popen([sys.executable, "-c", _CHILD, "progress"], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
-    assert child.stdout.readline() == b"x" * 50 + b"\n"
+@pytest.mark.parametrize(
+    ("command", "first_line"),
+    [
+        # `liquidgs experiment run SPEC --dry-run | head`: the reader goes, the command stops without a word.
+        ("flood", b"x" * 100 + b"\n"),
+        # rich meets the gone reader by exiting 1 itself: `liquidgs experiment run SPEC | head` ends as `head` expects.
+        ("progress", b"x" * 50 + b"\n"),
+    ],
+    ids=["plain output", "progress bar"],
+)
+def test_a_reader_that_stops_early_ends_the_command_quietly(command, first_line):
+    child = subprocess.Popen([sys.executable, "-c", _CHILD, command], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    assert child.stdout.readline() == first_line
     child.stdout.close()
     assert child.wait(timeout=60) == 141
     assert child.stderr.read() == b""
