@@ -189,3 +189,17 @@ def test_a_run_that_trains_from_the_flow_is_refused_once_the_flow_is_computed_ot
 def test_the_flow_error_of_a_run_on_d_nerf_is_one_line(tiny_mlp_run):
     code, _, stderr = run_cli(["eval", "--run", str(tiny_mlp_run), "--flow-error"])
     assert code == 2 and "is not a capture with optical flow" in stderr and stderr.count("\n") == 1, stderr
+
+
+@pytest.mark.parametrize(
+    ("flag", "value", "message"),
+    [("--split.vote", "0", "split.vote must be in (0, 1], got 0.0"),
+     ("--split.vote", "1.5", "split.vote must be in (0, 1], got 1.5"),
+     ("--split.every", "0", "split.every"),
+     ("--split.still", "nan", "split.still")],
+)  # fmt: skip
+def test_bad_split_settings_are_one_line_before_anything_is_written(capture, tmp_path, flag, value, message):
+    out = tmp_path / "run"
+    code, _, stderr = run_cli(["train", "--data", str(capture), *SPLIT_RUN, flag, value, "--out", str(out)])
+    assert code == 2 and message in stderr and stderr.count("\n") == 1, stderr
+    assert not out.exists()
