@@ -131,17 +131,18 @@ def test_a_split_run_resumes_bit_exactly_labels_included(capture, tmp_path, monk
         assert torch.equal(value, b["params"][key]), key
 
 
-def test_the_split_is_off_unless_asked_and_leaves_the_identity_of_runs_without_it(capture, puppet_scene, tmp_path):
+def test_the_split_switched_off_leaves_the_identity_of_runs_without_it(capture, puppet_scene, tmp_path):
     base = ["--data", str(capture), "--preset", "tiny"]
-    plain, _ = resolve_config(base)
-    split, _ = resolve_config([*base, "--split.apply"])
-    static, _ = resolve_config([*base, "--field", "static", "--split.apply"])
+    plain, _ = resolve_config([*base, "--split.apply", "false"])
+    split, _ = resolve_config([*base, "--split.apply", "true"])
+    static, _ = resolve_config([*base, "--field", "static", "--split.apply", "true"])
     static_plain, _ = resolve_config([*base, "--field", "static"])
     assert "split" not in identity(plain) and config_hash(split) != config_hash(plain)
     assert config_hash(static) == config_hash(static_plain)  # the static model has nothing to split
-    code, _, stderr = run_cli(["train", *base, "--split.vote", "0.3", "--out", str(tmp_path / "a")])
-    assert code == 2 and "--split.vote has no effect: --split.apply is off" in stderr
-    code, _, stderr = run_cli(["train", "--data", str(puppet_scene), "--preset", "tiny", "--split.apply",
+    code, _, stderr = run_cli(["train", *base, "--split.apply", "false", "--split.vote", "0.3",
+                               "--out", str(tmp_path / "a")])  # fmt: skip
+    assert code == 2 and "--split.vote has no effect: --split.apply is false" in stderr
+    code, _, stderr = run_cli(["train", "--data", str(puppet_scene), "--preset", "tiny", "--split.apply", "true",
                                "--out", str(tmp_path / "b")])  # fmt: skip
     assert code == 2 and "decided from a capture's motion masks" in stderr and stderr.count("\n") == 1
     assert not (tmp_path / "b").exists()

@@ -70,9 +70,15 @@ def test_flags_give_typed_settings():
     }  # fmt: skip
 
 
+def test_a_switch_that_may_be_unset_takes_a_value_as_tyro_shows_it():
+    """split.apply (bool or None, None: decided from the scene): --split.apply {None,True,False}."""
+    for text, value in (("True", True), ("false", False), ("None", None)):
+        assert parse_flag_settings(TrainConfig, ["--split.apply", text], "t") == {"split.apply": value}
+
+
 def test_flags_round_trip_through_to_flags():
     settings = {"field": "sde", "lambda_": 0.1, "eval.also": (5, 6), "eval.quantize_8bit": False, "downscale": 4,
-                "perturb.keep_frames": None, "densify.max_per_pixel": 1.5}  # fmt: skip
+                "perturb.keep_frames": None, "densify.max_per_pixel": 1.5, "split.apply": False}  # fmt: skip
     argv = to_flags(TrainConfig, settings)
     assert "--eval.no-quantize-8bit" in argv and "--downscale" in argv
     assert parse_flag_settings(TrainConfig, argv, "t") == setting_keys(TrainConfig, settings)
@@ -85,6 +91,7 @@ def test_flags_round_trip_through_to_flags():
         (["--bogus", "1"], "unrecognized arguments: --bogus 1"),
         (["--iterations"], "argument --iterations: expected one argument"),
         (["--iter", "3"], "unrecognized arguments: --iter 3"),  # no abbreviations: a typo never lands elsewhere
+        (["--split.apply", "yes"], "--split.apply: expected true or false or null, got 'yes'"),  # may be unset
     ],
 )
 def test_usage_errors_are_one_line(argv, message):

@@ -361,6 +361,10 @@ def _parse_value(text: str, hint, flag: str):
         return Path(text)
     if hint is str:
         return text
+    if hint is bool:  # a bool that may be unset takes a value (tyro's --name {None,True,False})
+        if text.lower() in ("true", "false"):
+            return text.lower() == "true"
+        raise ConfigError(f"{flag}: expected {describe(hint)}, got {text!r}")
     raise TypeError(f"flags of type {hint} are not supported")
 
 
@@ -489,7 +493,7 @@ def to_flags(cls, named: dict[str, Any]) -> list[str]:
     for key, value in setting_keys(cls, named).items():
         flag = by_key[key]
         strings = option_strings(flag)
-        if isinstance(value, bool):
+        if isinstance(value, bool) and _strip(flag.hint) is bool:
             args.append(strings[0] if value else strings[1])
         elif isinstance(value, (list, tuple)):
             args += [strings[0], *map(str, value)]

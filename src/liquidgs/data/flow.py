@@ -49,8 +49,8 @@ import numpy as np
 
 from liquidgs.atomic import build_atomically, write_json_atomic
 from liquidgs.cameras import Camera
-from liquidgs.data.loading import load_dataset
-from liquidgs.data.nerfies import RGB_FOLDER, camera_path, read_camera
+from liquidgs.data.loading import CAPTURE_FORMATS, detect_format, load_dataset
+from liquidgs.data.nerfies import RGB_FOLDER, camera_path, read_camera, read_scale
 from liquidgs.data.scene import DataConfig, Frame, SceneDataset
 from liquidgs.errors import DataError, LiquidGSError
 from liquidgs.file_hash import file_sha256
@@ -278,6 +278,19 @@ class FlowSummary:
 
 def flow_folder(scene: Path, factor: int) -> Path:
     return Path(scene) / FLOW_FOLDER / f"{factor}x"
+
+
+def has_flow(data: DataConfig) -> bool:
+    """Whether a run on `data` finds optical flow at the scale it reads its frames at: a capture with
+    flow/<k>x/flow.json there (whether that flow is current is checked where it is read). False where
+    the folder cannot say (not a scene yet: the data's own check says why)."""
+    try:
+        data_format = data.format if data.format != "auto" else detect_format(data.path)
+        if data_format not in CAPTURE_FORMATS:
+            return False
+        return (flow_folder(data.path, read_scale(data)) / FLOW_FILE).is_file()
+    except LiquidGSError:
+        return False
 
 
 def _sources(dataset: SceneDataset, frames: list[Frame]) -> dict[str, str]:

@@ -115,6 +115,22 @@ def check_image_size(camera_file: Path, camera: NerfiesCamera, image: Path, size
         )
 
 
+def _split_preset(cfg: DataConfig, dataset) -> str:
+    """The split preset data.split names, with 'auto' decided from dataset.json: HyperNeRF's interp
+    captures ship an empty val_ids, their test frames every 4th id (D-3DGS picks this split from an
+    interp* folder name; the file says it here)."""
+    if cfg.split != "auto":
+        return cfg.split
+    interp = isinstance(dataset, dict) and dataset.get("val_ids") == []
+    return "interp" if interp else "nerfds"
+
+
+def read_scale(cfg: DataConfig) -> int:
+    """k of the scale a Nerfies scene's frames are read at (1/k of the camera files' size): data.downscale,
+    else its split's default."""
+    return cfg.downscale or NERFIES_PRESETS[_split_preset(cfg, read_json(cfg.path / DATASET_FILE))]
+
+
 def read_nerfies(cfg: DataConfig) -> SceneDataset:
     root = cfg.path
     if cfg.val_as_test:
@@ -126,18 +142,13 @@ def read_nerfies(cfg: DataConfig) -> SceneDataset:
 
     dataset_path = root / DATASET_FILE
     dataset = read_json(dataset_path)
+    preset = _split_preset(cfg, dataset)
     notes = []
-    preset = cfg.split
-    if preset == "auto":
-        # HyperNeRF's interp captures ship an empty val_ids: their test frames are every 4th id
-        # (D-3DGS picks this split from an interp* folder name; the file says it here).
-        interp = isinstance(dataset, dict) and dataset.get("val_ids") == []
-        preset = "interp" if interp else "nerfds"
-        if interp:
-            notes.append(
-                "dataset.json has an empty val_ids, so split 'auto' reads it as an interp capture "
-                "(train ids[::4], test ids[2::4], 1/2 size); --split chooses another"
-            )
+    if cfg.split == "auto" and preset == "interp":
+        notes.append(
+            "dataset.json has an empty val_ids, so split 'auto' reads it as an interp capture "
+            "(train ids[::4], test ids[2::4], 1/2 size); --split chooses another"
+        )
     factor = cfg.downscale or NERFIES_PRESETS[preset]
     if preset == "interp":
         ids = _id_list(dataset, "ids", dataset_path)

@@ -182,10 +182,11 @@ def _paper_grid(dataset: str, preset: str, scenes, **kw) -> Grid:
 # The paper inherits its evaluation from the public D-3DGS code, whose metrics call LPIPS-VGG on
 # [0,1] images without normalize=True (../shared/specs/d3dgs.md): the paper's specs score LPIPS so.
 # It trains on the datasets' cameras and images as given, with the photometric loss alone: no camera
-# refinement, no motion regularisers and no exposure compensation, which liquidgs would otherwise
-# switch on for NeRF-DS (a capture); off, the runs' identities are those of before they existed.
+# refinement, no motion regularisers, no exposure compensation, and neither the optical-flow loss nor
+# the static/dynamic split (on for a capture with flow), which liquidgs would otherwise switch on for
+# NeRF-DS (a capture); off, the runs' identities are those of before they existed.
 PAPER_PROTOCOL = {"eval.lpips_normalize": False, "cameras.refine": "off", "motion.apply": "off",
-                  "exposure.apply": "off"}  # fmt: skip
+                  "exposure.apply": "off", "flow.weight": 0.0, "split.apply": False}  # fmt: skip
 PAPER_SEEDS = (0, 1, 2)
 _PAPER_TABLES = {
     "dnerf": ("dnerf", DNERF_SCENES, "Table I and the cost table: the 8 D-NeRF scenes at full resolution"),

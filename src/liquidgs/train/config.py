@@ -17,6 +17,7 @@ import yaml
 from liquidgs import settings
 from liquidgs.atomic import write_text_atomic
 from liquidgs.data.dnerf import SCENE_BOUND
+from liquidgs.data.flow import has_flow
 from liquidgs.data.perturb import PerturbConfig
 from liquidgs.data.scene import DataConfig
 from liquidgs.errors import ConfigError
@@ -37,7 +38,7 @@ from liquidgs.settings import to_dict, with_settings
 from liquidgs.train.camera_opt import Alignment, CameraRefineConfig, known_format, refines
 from liquidgs.train.dynamic_split import SplitConfig, split_applies
 from liquidgs.train.exposure import ExposureConfig, compensates
-from liquidgs.train.flow_loss import FlowLossConfig
+from liquidgs.train.flow_loss import DEFAULT_WEIGHT, FlowLossConfig
 from liquidgs.train.motion_reg import MotionRegConfig, motion_applies
 from liquidgs.train.strategy import DensifyConfig
 
@@ -162,10 +163,11 @@ class TrainConfig:
     exposure: ExposureConfig = dataclasses.field(default_factory=ExposureConfig)
     """A colour correction per training frame (on for captures, off for D-NeRF)."""
     flow: FlowLossConfig = dataclasses.field(default_factory=FlowLossConfig)
-    """The optical-flow loss (off by default; captures with flow at the training scale)."""
+    """The optical-flow loss (on by default for captures with flow at the training scale, off
+    elsewhere: with_motion_evidence)."""
     split: SplitConfig = dataclasses.field(default_factory=SplitConfig)
-    """Static and dynamic Gaussians: the field moves only those the motion masks show moving (off by
-    default; captures with flow at the training scale)."""
+    """Static and dynamic Gaussians: the field moves only those the motion masks show moving (on by
+    default for captures with flow at the training scale, off elsewhere: with_motion_evidence)."""
 
     def __post_init__(self) -> None:
         own = field_options_class(self.field)
@@ -362,12 +364,30 @@ def validate(cfg: TrainConfig) -> None:
 _FIELD_OPTION_NAMES = frozenset(f.name for f in dataclasses.fields(FieldOptions))
 
 
+def with_motion_evidence(cfg: TrainConfig) -> TrainConfig:
+    """`cfg` with the motion evidence it leaves to the scene decided: where the scene has optical flow
+    and motion masks at the scale the run reads (data.flow.has_flow) the flow loss at DEFAULT_WEIGHT
+    and the static/dynamic split on, elsewhere (D-NeRF, synthetic scenes, captures without flow)
+    both off. A value set (flow.weight, split.apply) is kept. The one owner of these defaults: the
+    trainer records its result in config.yml (the run resumes and reproduces as trained, whatever
+    later happens to the scene's flow) and the identity hashes it."""
+    if cfg.flow.weight is not None and cfg.split.apply is not None:
+        return cfg
+    found = has_flow(cfg.data)
+    weight = cfg.flow.weight if cfg.flow.weight is not None else DEFAULT_WEIGHT if found else 0.0
+    apply = cfg.split.apply if cfg.split.apply is not None else found
+    return dataclasses.replace(cfg, flow=dataclasses.replace(cfg.flow, weight=weight),
+                               split=dataclasses.replace(cfg.split, apply=apply))  # fmt: skip
+
+
 def check_given_settings(cfg: TrainConfig, given: typing.Iterable[str]) -> None:
     """ConfigError for a setting given on the command line (dotted keys) that this run never reads: a
     field option of another field, a motion term's setting where the motion terms are off. Only what
     was given is refused: presets and specs set options for every field of a grid, and config.yml
     keeps what it holds (its identity, and so its folder, unchanged)."""
     data_format = known_format(cfg.data)
+    split_left_to_scene = cfg.split.apply is None
+    cfg = with_motion_evidence(cfg)
     read = options_read(cfg.field)
     for key in given:
         group, _, name = key.partition(".")
@@ -386,7 +406,12 @@ def check_given_settings(cfg: TrainConfig, given: typing.Iterable[str]) -> None:
                 why = f"--motion.apply auto is off for {data_format} data (on for captures)"
             raise ConfigError(f"--motion.{name.replace('_', '-')} has no effect: {why}, so no motion term is trained")
         if group == "split" and name != "apply" and not split_applies(cfg.split, cfg.field):
-            why = "the static field does not move Gaussians" if cfg.field == "static" else "--split.apply is off"
+            if cfg.field == "static":
+                why = "the static field does not move Gaussians"
+            elif split_left_to_scene:
+                why = "the scene has no optical flow at the training scale (liquidgs data flow), so the split is off"
+            else:
+                why = "--split.apply is false"
             raise ConfigError(f"--split.{name.replace('_', '-')} has no effect: {why}")
 
 
@@ -407,6 +432,7 @@ _IDENTITY_MARKER = 2
 def identity_v2(cfg: TrainConfig) -> dict:
     """What a run computes from, as version 2 wrote it. A setting added later must not change the
     identity of runs made without it: leave it out at the value those runs had (and test that)."""
+    cfg = with_motion_evidence(cfg)  # flow and split as the run decides them from its scene
     d = to_dict(cfg)
     for dotted in _NOT_IDENTITY:
         *groups, last = dotted.split(".")
@@ -577,4 +603,7 @@ def from_dict(raw: dict, source: Path | str = "config") -> TrainConfig:
             raw = {**raw, "motion": {**raw["motion"], "stillness": 0.0}}
     if "exposure" not in raw:  # stored before exposure compensation existed: trained without it
         raw = {**raw, "exposure": {"apply": "off"}}
+    for group, off in (("flow", {"weight": 0.0}), ("split", {"apply": False})):  # stored before they existed
+        if group not in raw:
+            raw = {**raw, group: off}
     return settings.from_dict(TrainConfig, raw, source)

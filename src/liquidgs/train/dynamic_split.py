@@ -40,12 +40,14 @@ REDECIDE_TIMES = 8
 
 @dataclass
 class SplitConfig:
-    """Static and dynamic Gaussians (see liquidgs.train.dynamic_split); off by default."""
+    """Static and dynamic Gaussians (see liquidgs.train.dynamic_split); by default on where the scene
+    has motion masks at the training scale."""
 
-    apply: bool = False
+    apply: bool | None = None
     """Split the Gaussians into static ones, which the field never moves, and dynamic ones, decided from
     the scene's motion masks (`liquidgs data flow`, at the training scale). Captures only; the static
-    model has nothing to split."""
+    model has nothing to split. Unset: on where the scene has its flow and masks at the training
+    scale, else off."""
     vote: float = 0.05
     """A Gaussian is dynamic when its centre lies inside the motion masks in at least this share of the
     train frames that see it. Low, because a mask holds a slow subject only in the frames where its
@@ -60,8 +62,8 @@ class SplitConfig:
     train time becomes static."""
 
     def __post_init__(self) -> None:
-        if not isinstance(self.apply, bool):
-            raise ConfigError(f"split.apply must be true or false, got {self.apply!r}")
+        if self.apply is not None and not isinstance(self.apply, bool):
+            raise ConfigError(f"split.apply must be true, false or unset, got {self.apply!r}")
         check_number("split.vote", self.vote)
         if not 0 < self.vote <= 1:
             raise ConfigError(f"split.vote must be in (0, 1], got {self.vote!r}")
@@ -70,7 +72,10 @@ class SplitConfig:
 
 
 def split_applies(cfg: SplitConfig, field: str) -> bool:
-    """Whether the run labels its Gaussians (the static model has only static ones)."""
+    """Whether the run labels its Gaussians (the static model has only static ones); `cfg` as
+    train.config's with_motion_evidence decided it."""
+    if cfg.apply is None:
+        raise ValueError("split.apply undecided: resolve the config with with_motion_evidence first")
     return cfg.apply and field != "static"
 
 

@@ -27,7 +27,7 @@ from liquidgs.eval.metrics import MIN_MSE, psnr_from_mse
 from liquidgs.fields import build_field
 from liquidgs.gaussians import PARAM_KEYS, init_from_points, init_random_box
 from liquidgs.train.camera_opt import CameraRefinement, aligned_render, refines
-from liquidgs.train.config import TrainConfig, save_yaml
+from liquidgs.train.config import TrainConfig, save_yaml, with_motion_evidence
 from liquidgs.train.dataset import load_run_dataset
 from liquidgs.train.dynamic_split import DYNAMIC, MotionVotes, moving_indices, split_applies
 from liquidgs.train.exposure import ExposureCompensation, compensates
@@ -128,6 +128,7 @@ def _say(progress, line: str) -> None:
 
 class Trainer:
     def __init__(self, cfg: TrainConfig, run_dir: Path, dataset: SceneDataset | None = None):
+        cfg = with_motion_evidence(cfg)  # decided once, at the start, and recorded so in config.yml
         self.cfg = cfg
         self.run_dir = Path(run_dir)
         self.device = resolve_device(cfg.device)

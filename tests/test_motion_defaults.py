@@ -1,0 +1,121 @@
+"""The motion evidence's defaults (train.config.with_motion_evidence): the optical-flow loss and the
+static/dynamic split on for a capture with flow at the scale the run reads, off for D-NeRF, captures
+without flow and the paper's specs - their identities as before - and decided once, recorded in
+config.yml, so a run made before resumes as it was trained."""
+
+from __future__ import annotations
+
+import dataclasses
+import shutil
+from pathlib import Path
+
+import pytest
+import torch
+
+from liquidgs.commands.train import resolve_config
+from liquidgs.data import generate_synthetic
+from liquidgs.data.flow import compute_scene_flow
+from liquidgs.experiments import BUILTIN_SPECS, expand
+from liquidgs.experiments.spec import NERFDS_SCENES
+from liquidgs.train.config import config_hash, identity, load_yaml, with_motion_evidence
+from liquidgs.train.flow_loss import DEFAULT_WEIGHT
+from shared_data import use_optional_lpips
+from tiny_runs import interrupt_at, run_train, tiny_flags
+
+pytest.importorskip("cv2", reason="optical flow needs opencv-python-headless (the dev extra installs it)")
+
+OFF = ["--flow.weight", "0", "--split.apply", "false"]
+"""The settings every run made before these defaults trained with."""
+
+
+@pytest.fixture(scope="module")
+def capture(tmp_path_factory) -> Path:
+    """The puppet as a capture (48 px, 16 frames) with its flow and motion masks at 1x."""
+    scene = generate_synthetic("puppet", tmp_path_factory.mktemp("defaults") / "puppet", size=48, frames=16, seed=2)
+    compute_scene_flow(scene / "nerfies", None)
+    return scene / "nerfies"
+
+
+@pytest.fixture(autouse=True)
+def optional_lpips(monkeypatch):
+    use_optional_lpips(monkeypatch)
+
+
+def configs(data: Path, *args: str):
+    """(the config as given, the same with every setting of before these defaults)."""
+    base = ["--data", str(data), "--preset", "tiny", *args]
+    return resolve_config(base)[0], resolve_config([*base, *OFF])[0]
+
+
+def test_a_capture_with_flow_gets_the_flow_loss_and_the_split(capture):
+    given, _ = configs(capture)
+    assert given.flow.weight is None and given.split.apply is None  # left to the scene
+    decided = with_motion_evidence(given)
+    assert decided.flow.weight == DEFAULT_WEIGHT == 0.02 and decided.split.apply is True
+    on, _ = configs(capture, "--flow.weight", "0.02", "--split.apply", "true")
+    assert config_hash(given) == config_hash(decided) == config_hash(on)
+    assert identity(given)["flow"] == {"weight": 0.02} and identity(given)["split"]["apply"] is True
+    set_off, _ = configs(capture, "--split.apply", "false")  # a value given is kept
+    assert with_motion_evidence(set_off).split.apply is False and with_motion_evidence(set_off).flow.weight == 0.02
+
+
+def test_dnerf_and_a_capture_without_flow_at_its_scale_keep_the_identity_of_before(capture, puppet_scene, tmp_path):
+    bare = Path(shutil.copytree(capture, tmp_path / "bare", ignore=shutil.ignore_patterns("flow")))
+    for data, args in ((puppet_scene, ()), (bare, ()), (capture, ("--downscale", "2"))):  # the last: flow at 1x only
+        given, before = configs(data, *args)
+        decided = with_motion_evidence(given)
+        assert decided.flow.weight == 0.0 and decided.split.apply is False, data
+        assert "flow" not in identity(given) and "split" not in identity(given)
+        assert config_hash(given) == config_hash(before)
+
+
+def test_the_paper_specs_train_without_flow_even_where_a_nerfds_scene_has_it(tmp_path):
+    root = tmp_path / "root"
+    for scene in NERFDS_SCENES:
+        (root / "nerfds" / scene / "flow" / "1x").mkdir(parents=True)
+        (root / "nerfds" / scene / "dataset.json").write_text("{}")
+        (root / "nerfds" / scene / "flow" / "1x" / "flow.json").write_text("{}")  # has_flow looks no further
+    runs = expand(BUILTIN_SPECS["paper-nerfds"], root, tmp_path / "e").runs
+    assert len(runs) == 3 * len(NERFDS_SCENES)
+    for run in runs:
+        cfg = run.train_config()
+        left = dataclasses.replace(cfg, flow=dataclasses.replace(cfg.flow, weight=None),
+                                   split=dataclasses.replace(cfg.split, apply=None))  # fmt: skip
+        assert with_motion_evidence(left).flow.weight == DEFAULT_WEIGHT  # the scene has flow...
+        assert with_motion_evidence(cfg).flow.weight == 0.0 and with_motion_evidence(cfg).split.apply is False
+        assert "flow" not in identity(cfg) and "split" not in identity(cfg)  # ...the spec keeps it off
+
+
+RUN = tiny_flags({"iterations": 24, "checkpoint_every": 8, "eval.start": 24, "cameras.align_steps": 5})
+
+
+def test_config_yml_records_the_decision(capture, tmp_path):
+    run_train(["--data", str(capture), "--field", "mlp", *RUN, "--iterations", "6", "--eval.start", "6",
+               "--out", str(tmp_path / "run")])  # fmt: skip
+    stored = load_yaml(tmp_path / "run" / "config.yml")
+    assert stored.flow.weight == DEFAULT_WEIGHT and stored.split.apply is True
+
+
+def test_a_run_made_before_the_defaults_resumes_as_it_was_trained(capture, tmp_path, monkeypatch):
+    """Its config.yml without `flow` and `split` (written before they existed): it resumes without
+    either, on a scene that now has flow, to the last bit of the same run trained whole."""
+    flags = ["--data", str(capture), "--field", "mlp", *RUN, *OFF]
+    run_train([*flags, "--out", str(tmp_path / "whole")])
+    cut = tmp_path / "cut"
+    interrupt_at(17, [*flags, "--out", str(cut)], monkeypatch)
+    config = cut / "config.yml"
+    lines, kept, skipping = config.read_text().splitlines(), [], False
+    for line in lines:  # drop the two top-level sections
+        if not line.startswith(" "):
+            skipping = line in ("flow:", "split:")
+        if not skipping:
+            kept.append(line)
+    assert len(kept) < len(lines)
+    config.write_text("\n".join(kept) + "\n")
+    run_train(["--out", str(cut), "--resume"])
+    a = torch.load(tmp_path / "whole" / "checkpoint.pt", weights_only=True)
+    b = torch.load(cut / "checkpoint.pt", weights_only=True)
+    for key, value in a["params"].items():
+        assert torch.equal(value, b["params"][key]), key
+    resumed = load_yaml(config)
+    assert resumed.flow.weight == 0.0 and resumed.split.apply is False
