@@ -59,3 +59,15 @@ def tiny_mlp_run(puppet_scene, tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("tiny_mlp_run") / "run"
     run_train(["--data", str(puppet_scene), "--field", "mlp", *tiny_flags(), "--out", str(out)])
     return out
+
+
+@pytest.fixture(scope="session")
+def flow_capture(tmp_path_factory) -> Path:
+    """The puppet as a capture (48 px, 16 frames, seed 2) with its optical flow and motion masks at
+    1x, made once for every test that only reads it; a test that changes it changes a copy."""
+    pytest.importorskip("cv2", reason="optical flow needs opencv-python-headless (the dev extra installs it)")
+    from liquidgs.data.flow import compute_scene_flow
+
+    scene = generate_synthetic("puppet", tmp_path_factory.mktemp("flow_capture") / "puppet", size=48, frames=16, seed=2)
+    compute_scene_flow(scene / "nerfies", None)
+    return scene / "nerfies"

@@ -13,8 +13,7 @@ import torch
 from PIL import Image
 
 from liquidgs.commands.train import resolve_config
-from liquidgs.data import generate_synthetic, load_dataset
-from liquidgs.data.flow import compute_scene_flow
+from liquidgs.data import load_dataset
 from liquidgs.errors import LiquidGSError
 from liquidgs.train.config import config_hash, identity
 from liquidgs.train.dataset import load_run_dataset
@@ -28,27 +27,19 @@ from tiny_runs import interrupt_at, run_cli, run_train, tiny_flags
 pytest.importorskip("cv2", reason="optical flow needs opencv-python-headless (the dev extra installs it)")
 
 
-@pytest.fixture(scope="module")
-def capture(tmp_path_factory) -> Path:
-    """The puppet as a capture (48 px, 16 frames) with its flow and motion masks."""
-    scene = generate_synthetic("puppet", tmp_path_factory.mktemp("split") / "puppet", size=48, frames=16, seed=2)
-    compute_scene_flow(scene / "nerfies", None)
-    return scene / "nerfies"
-
-
 @pytest.fixture(autouse=True)
 def optional_lpips(monkeypatch):
     use_optional_lpips(monkeypatch)
 
 
-def votes_for(capture: Path, cfg: SplitConfig | None = None) -> tuple[MotionVotes, list]:
-    cfg_run, _ = resolve_config(["--data", str(capture), "--preset", "tiny"])
+def votes_for(scene: Path, cfg: SplitConfig | None = None) -> tuple[MotionVotes, list]:
+    cfg_run, _ = resolve_config(["--data", str(scene), "--preset", "tiny"])
     train = load_run_dataset(cfg_run, load_dataset(cfg_run.data)).train
-    return MotionVotes(cfg or SplitConfig(apply=True), capture, train, 1.0, torch.device("cpu")), train
+    return MotionVotes(cfg or SplitConfig(apply=True), scene, train, 1.0, torch.device("cpu")), train
 
 
-def test_a_point_the_masks_hold_in_every_frame_is_dynamic_and_one_they_never_hold_is_static(capture):
-    votes, train = votes_for(capture)
+def test_a_point_the_masks_hold_in_every_frame_is_dynamic_and_one_they_never_hold_is_static(flow_capture):
+    votes, train = votes_for(flow_capture)
     held, elsewhere = torch.tensor([[0.05, 0.02, 0.0]]), torch.tensor([[0.3, -0.25, 0.1]])
     votes.masks[:] = False
     for i, frame in enumerate(train):  # each frame's mask is the one pixel the first point falls in
@@ -60,8 +51,8 @@ def test_a_point_the_masks_hold_in_every_frame_is_dynamic_and_one_they_never_hol
     assert votes.vote(behind).tolist() == [0.0]
 
 
-def test_labels_are_decided_again_from_the_masks_and_the_field_motion(capture):
-    votes, _ = votes_for(capture)
+def test_labels_are_decided_again_from_the_masks_and_the_field_motion(flow_capture):
+    votes, _ = votes_for(flow_capture)
     votes.vote = lambda means: torch.tensor([1.0, 0.0, 0.0, 1.0])  # masks hold Gaussians 0 and 3
     labels = torch.tensor([False, True, True, True])
     moves = {1: 0.0, 2: 0.5, 3: 0.0}  # the field leaves 1 (and 3) still and moves 2
@@ -99,9 +90,9 @@ SPLIT_RUN = tiny_flags({"iterations": 30, "checkpoint_every": 10, "eval.start": 
                         "split.apply": True, "split.every": 5, "split.vote": 0.5})  # fmt: skip
 
 
-def test_the_field_never_moves_a_static_gaussian_and_sees_only_the_dynamic_ones(capture, tmp_path):
+def test_the_field_never_moves_a_static_gaussian_and_sees_only_the_dynamic_ones(flow_capture, tmp_path):
     out = tmp_path / "run"
-    results = run_train(["--data", str(capture), "--field", "mlp", *SPLIT_RUN, "--out", str(out)])
+    results = run_train(["--data", str(flow_capture), "--field", "mlp", *SPLIT_RUN, "--out", str(out)])
     run = load_run(out)
     labels = torch.load(out / "checkpoint.pt", weights_only=True)["strategy"][DYNAMIC]
     assert results.dynamic_gaussians == int(labels.sum()) and 0 < results.dynamic_gaussians < results.num_gaussians
@@ -119,8 +110,8 @@ def test_the_field_never_moves_a_static_gaussian_and_sees_only_the_dynamic_ones(
     assert set(seen) == {results.dynamic_gaussians}
 
 
-def test_a_split_run_resumes_bit_exactly_labels_included(capture, tmp_path, monkeypatch):
-    flags = ["--data", str(capture), "--field", "mlp", *SPLIT_RUN]
+def test_a_split_run_resumes_bit_exactly_labels_included(flow_capture, tmp_path, monkeypatch):
+    flags = ["--data", str(flow_capture), "--field", "mlp", *SPLIT_RUN]
     run_train([*flags, "--out", str(tmp_path / "whole")])
     interrupt_at(17, [*flags, "--out", str(tmp_path / "cut")], monkeypatch)
     run_train([*flags, "--out", str(tmp_path / "cut"), "--resume"])
@@ -131,8 +122,8 @@ def test_a_split_run_resumes_bit_exactly_labels_included(capture, tmp_path, monk
         assert torch.equal(value, b["params"][key]), key
 
 
-def test_the_split_switched_off_leaves_the_identity_of_runs_without_it(capture, puppet_scene, tmp_path):
-    base = ["--data", str(capture), "--preset", "tiny"]
+def test_the_split_switched_off_leaves_the_identity_of_runs_without_it(flow_capture, puppet_scene, tmp_path):
+    base = ["--data", str(flow_capture), "--preset", "tiny"]
     plain, _ = resolve_config([*base, "--split.apply", "false"])
     split, _ = resolve_config([*base, "--split.apply", "true"])
     static, _ = resolve_config([*base, "--field", "static", "--split.apply", "true"])
@@ -149,8 +140,8 @@ def test_the_split_switched_off_leaves_the_identity_of_runs_without_it(capture, 
 
 
 @pytest.mark.parametrize(("value", "message"), [(0, "hold no pixel"), (255, "hold every pixel")])
-def test_masks_that_hold_no_pixel_or_every_pixel_are_one_line(capture, tmp_path, value, message):
-    scene = Path(shutil.copytree(capture, tmp_path / "scene"))
+def test_masks_that_hold_no_pixel_or_every_pixel_are_one_line(flow_capture, tmp_path, value, message):
+    scene = Path(shutil.copytree(flow_capture, tmp_path / "scene"))
     for mask in (scene / "flow" / "1x" / "masks").glob("*.png"):
         shape = np.asarray(Image.open(mask)).shape
         Image.fromarray(np.full(shape, value, np.uint8)).save(mask)
@@ -160,11 +151,11 @@ def test_masks_that_hold_no_pixel_or_every_pixel_are_one_line(capture, tmp_path,
         votes_for(scene)
 
 
-def test_the_viewer_draws_static_gaussians_blue_and_dynamic_ones_orange(capture, tmp_path):
+def test_the_viewer_draws_static_gaussians_blue_and_dynamic_ones_orange(flow_capture, tmp_path):
     from liquidgs.viewer.scenes import SPLIT_COLOURS, RunScene
 
     out = tmp_path / "run"
-    run_train(["--data", str(capture), "--field", "mlp", *SPLIT_RUN, "--out", str(out)])
+    run_train(["--data", str(flow_capture), "--field", "mlp", *SPLIT_RUN, "--out", str(out)])
     scene = RunScene(load_run(out), "split")
     assert scene.has_split
     frame = scene.dataset.train[0]
@@ -174,8 +165,8 @@ def test_the_viewer_draws_static_gaussians_blue_and_dynamic_ones_orange(capture,
     assert (nearest == 0).sum() > 20 and (nearest == 1).sum() > 20  # both sets on screen
 
 
-def test_a_run_that_trains_from_the_flow_is_refused_once_the_flow_is_computed_otherwise(capture, tmp_path):
-    scene = Path(shutil.copytree(capture, tmp_path / "scene"))
+def test_a_run_that_trains_from_the_flow_is_refused_once_the_flow_is_computed_otherwise(flow_capture, tmp_path):
+    scene = Path(shutil.copytree(flow_capture, tmp_path / "scene"))
     out = tmp_path / "run"
     run_train(["--data", str(scene), "--field", "mlp", *SPLIT_RUN, "--out", str(out)])
     assert run_cli(["eval", "--run", str(out), "--flow-error"])[0] == 0
@@ -199,8 +190,8 @@ def test_the_flow_error_of_a_run_on_d_nerf_is_one_line(tiny_mlp_run):
      ("--split.every", "0", "split.every"),
      ("--split.still", "nan", "split.still")],
 )  # fmt: skip
-def test_bad_split_settings_are_one_line_before_anything_is_written(capture, tmp_path, flag, value, message):
+def test_bad_split_settings_are_one_line_before_anything_is_written(flow_capture, tmp_path, flag, value, message):
     out = tmp_path / "run"
-    code, _, stderr = run_cli(["train", "--data", str(capture), *SPLIT_RUN, flag, value, "--out", str(out)])
+    code, _, stderr = run_cli(["train", "--data", str(flow_capture), *SPLIT_RUN, flag, value, "--out", str(out)])
     assert code == 2 and message in stderr and stderr.count("\n") == 1, stderr
     assert not out.exists()

@@ -13,8 +13,6 @@ import pytest
 import torch
 
 from liquidgs.commands.train import resolve_config
-from liquidgs.data import generate_synthetic
-from liquidgs.data.flow import compute_scene_flow
 from liquidgs.experiments import BUILTIN_SPECS, expand
 from liquidgs.experiments.spec import NERFDS_SCENES
 from liquidgs.train.config import config_hash, identity, load_yaml, with_motion_evidence
@@ -28,14 +26,6 @@ OFF = ["--flow.weight", "0", "--split.apply", "false"]
 """The settings every run made before these defaults trained with."""
 
 
-@pytest.fixture(scope="module")
-def capture(tmp_path_factory) -> Path:
-    """The puppet as a capture (48 px, 16 frames) with its flow and motion masks at 1x."""
-    scene = generate_synthetic("puppet", tmp_path_factory.mktemp("defaults") / "puppet", size=48, frames=16, seed=2)
-    compute_scene_flow(scene / "nerfies", None)
-    return scene / "nerfies"
-
-
 @pytest.fixture(autouse=True)
 def optional_lpips(monkeypatch):
     use_optional_lpips(monkeypatch)
@@ -47,21 +37,22 @@ def configs(data: Path, *args: str):
     return resolve_config(base)[0], resolve_config([*base, *OFF])[0]
 
 
-def test_a_capture_with_flow_gets_the_flow_loss_and_the_split(capture):
-    given, _ = configs(capture)
+def test_a_capture_with_flow_gets_the_flow_loss_and_the_split(flow_capture):
+    given, _ = configs(flow_capture)
     assert given.flow.weight is None and given.split.apply is None  # left to the scene
     decided = with_motion_evidence(given)
     assert decided.flow.weight == DEFAULT_WEIGHT == 0.02 and decided.split.apply is True
-    on, _ = configs(capture, "--flow.weight", "0.02", "--split.apply", "true")
+    on, _ = configs(flow_capture, "--flow.weight", "0.02", "--split.apply", "true")
     assert config_hash(given) == config_hash(decided) == config_hash(on)
     assert identity(given)["flow"] == {"weight": 0.02} and identity(given)["split"]["apply"] is True
-    set_off, _ = configs(capture, "--split.apply", "false")  # a value given is kept
+    set_off, _ = configs(flow_capture, "--split.apply", "false")  # a value given is kept
     assert with_motion_evidence(set_off).split.apply is False and with_motion_evidence(set_off).flow.weight == 0.02
 
 
-def test_dnerf_and_a_capture_without_flow_at_its_scale_keep_the_identity_of_before(capture, puppet_scene, tmp_path):
-    bare = Path(shutil.copytree(capture, tmp_path / "bare", ignore=shutil.ignore_patterns("flow")))
-    for data, args in ((puppet_scene, ()), (bare, ()), (capture, ("--downscale", "2"))):  # the last: flow at 1x only
+def test_dnerf_and_a_capture_without_flow_at_its_scale_keep_their_identity(flow_capture, puppet_scene, tmp_path):
+    bare = Path(shutil.copytree(flow_capture, tmp_path / "bare", ignore=shutil.ignore_patterns("flow")))
+    at_half = (flow_capture, ("--downscale", "2"))  # its flow is at 1x only
+    for data, args in ((puppet_scene, ()), (bare, ()), at_half):
         given, before = configs(data, *args)
         decided = with_motion_evidence(given)
         assert decided.flow.weight == 0.0 and decided.split.apply is False, data
@@ -89,17 +80,17 @@ def test_the_paper_specs_train_without_flow_even_where_a_nerfds_scene_has_it(tmp
 RUN = tiny_flags({"iterations": 24, "checkpoint_every": 8, "eval.start": 24, "cameras.align_steps": 5})
 
 
-def test_config_yml_records_the_decision(capture, tmp_path):
-    run_train(["--data", str(capture), "--field", "mlp", *RUN, "--iterations", "6", "--eval.start", "6",
+def test_config_yml_records_the_decision(flow_capture, tmp_path):
+    run_train(["--data", str(flow_capture), "--field", "mlp", *RUN, "--iterations", "6", "--eval.start", "6",
                "--out", str(tmp_path / "run")])  # fmt: skip
     stored = load_yaml(tmp_path / "run" / "config.yml")
     assert stored.flow.weight == DEFAULT_WEIGHT and stored.split.apply is True
 
 
-def test_a_run_made_before_the_defaults_resumes_as_it_was_trained(capture, tmp_path, monkeypatch):
+def test_a_run_made_before_the_defaults_resumes_as_it_was_trained(flow_capture, tmp_path, monkeypatch):
     """Its config.yml without `flow` and `split` (written before they existed): it resumes without
     either, on a scene that now has flow, to the last bit of the same run trained whole."""
-    flags = ["--data", str(capture), "--field", "mlp", *RUN, *OFF]
+    flags = ["--data", str(flow_capture), "--field", "mlp", *RUN, *OFF]
     run_train([*flags, "--out", str(tmp_path / "whole")])
     cut = tmp_path / "cut"
     interrupt_at(17, [*flags, "--out", str(cut)], monkeypatch)
