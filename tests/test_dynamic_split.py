@@ -90,9 +90,10 @@ SPLIT_RUN = tiny_flags({"iterations": 30, "checkpoint_every": 10, "eval.start": 
                         "split.apply": True, "split.every": 5, "split.vote": 0.5})  # fmt: skip
 
 
-def test_the_field_never_moves_a_static_gaussian_and_sees_only_the_dynamic_ones(flow_capture, tmp_path):
+@pytest.mark.parametrize("field", ["mlp", "hexplane"])
+def test_the_field_never_moves_a_static_gaussian_and_sees_only_the_dynamic_ones(flow_capture, tmp_path, field):
     out = tmp_path / "run"
-    results = run_train(["--data", str(flow_capture), "--field", "mlp", *SPLIT_RUN, "--out", str(out)])
+    results = run_train(["--data", str(flow_capture), "--field", field, *SPLIT_RUN, "--out", str(out)])
     run = load_run(out)
     labels = torch.load(out / "checkpoint.pt", weights_only=True)["strategy"][DYNAMIC]
     assert results.dynamic_gaussians == int(labels.sum()) and 0 < results.dynamic_gaussians < results.num_gaussians
