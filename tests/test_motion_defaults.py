@@ -13,6 +13,7 @@ import pytest
 import torch
 
 from liquidgs.commands.train import resolve_config
+from liquidgs.errors import ConfigError
 from liquidgs.experiments import BUILTIN_SPECS, expand
 from liquidgs.experiments.spec import NERFDS_SCENES
 from liquidgs.train.config import config_hash, identity, load_yaml, with_motion_evidence
@@ -58,6 +59,8 @@ def test_dnerf_and_a_capture_without_flow_at_its_scale_keep_their_identity(flow_
         assert decided.flow.weight == 0.0 and decided.split.apply is False, data
         assert "flow" not in identity(given) and "split" not in identity(given)
         assert config_hash(given) == config_hash(before)
+    with pytest.raises(ConfigError, match="--split.vote has no effect: the scene has no optical flow at the training"):
+        resolve_config(["--data", str(bare), "--preset", "tiny", "--split.vote", "0.3"])
 
 
 def test_the_paper_specs_train_without_flow_even_where_a_nerfds_scene_has_it(tmp_path):
