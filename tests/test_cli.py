@@ -126,7 +126,19 @@ def test_bench_train_times_every_phase_of_real_steps(capsys, tmp_path):
     # After the tiny preset's 100-step warm-up the field runs, so both of its passes take time.
     assert all(phases[name] > 0 for name in ("field_forward", "field_backward", "raster_forward", "raster_backward"))
     assert sum(phases.values()) == pytest.approx(record["ms_per_iteration"], rel=0.5)
-    assert record["torch_threads"] >= 1 and record["machine"]
+    assert record["torch_threads"] >= 1 and record["machine"] and record["clock"] == "wall"
+
+
+def test_bench_train_on_the_cpu_clock_counts_the_process_own_work(capsys, monkeypatch):
+    """--clock cpu: the steps' and phases' times are the process's CPU seconds, whatever else runs."""
+    import time
+
+    ticks = iter(range(10**6))
+    monkeypatch.setattr(time, "process_time", lambda: 0.001 * next(ticks))  # 1 ms a reading, no wall time
+    assert cli(["bench", "train", "--json", "--size", "32", "--from-step", "2", "--steps", "3", "--clock", "cpu"]) == 0
+    record = json.loads(capsys.readouterr().out)
+    times = [record["ms_per_iteration"], *record["phases_ms"].values()]
+    assert record["clock"] == "cpu" and all(ms == pytest.approx(round(ms)) for ms in times)  # whole readings only
 
 
 def test_bench_train_takes_train_settings_for_the_timed_run(capsys):

@@ -1,4 +1,5 @@
-"""Wall-clock time of each phase of a training step, for `liquidgs bench train`.
+"""Time of each phase of a training step, for `liquidgs bench train`: wall-clock, or the process's
+CPU time (steadier than wall time on a CPU shared with other work, which only the wall clock counts).
 
 The trainer marks the end of each phase; the backward pass is split with tensor hooks: the
 gradient reaching the rendered image ends the loss's backward, the first gradient reaching
@@ -45,10 +46,15 @@ class NoClock:
 
 
 class PhaseClock(NoClock):
-    """Seconds per phase of the current step in `times` (reset by start())."""
+    """Seconds per phase of the current step in `times` (reset by start()); `cpu_time`: the process's
+    CPU seconds (a CPU device only) instead of the wall clock's."""
 
-    def __init__(self, device: torch.device):
+    def __init__(self, device: torch.device, cpu_time: bool = False):
+        if cpu_time and device.type != "cpu":
+            raise ValueError("CPU time measures a CPU device's work only")
         self.device = device
+        self.now = time.process_time if cpu_time else time.perf_counter
+        """The clock, in seconds: also the benchmark's for whole steps."""
         self.times: dict[str, float] = {}
         self._last = 0.0
         self._handles: list = []
@@ -57,7 +63,7 @@ class PhaseClock(NoClock):
     def _now(self) -> float:
         if self.device.type == "cuda":
             torch.cuda.synchronize(self.device)
-        return time.perf_counter()
+        return self.now()
 
     def start(self) -> None:
         self.times = dict.fromkeys(PHASES, 0.0)
