@@ -405,6 +405,30 @@ def test_splatv_file_follows_the_layout_splatv_players_read(baked, tmp_path):
             assert shown == pytest.approx(float(model.at_time(t).opacities[i]), abs=1 / 255)
 
 
+def splatv_records(data: bytes) -> int:
+    """The records of a .splatv file whose temporal scale is set (the last row's unused slots are zero)."""
+    (length,) = struct.unpack_from("<I", data, 4)
+    words = np.frombuffer(data[8 + length :], dtype="<u4").reshape(-1, 16)
+    return int((words[:, 15] >> 16 != 0).sum())
+
+
+def test_splatv_budget_flags_reach_the_fit(baked, tmp_path):
+    """--splatv-tolerance and --splatv-pieces are the fit's budget: a tighter one writes the records
+    the fit gives for it, more than the default's."""
+    from liquidgs.bake.pieces import fit_splatv
+
+    records = {}
+    for name, flags in (("default", []), ("tight", ["--splatv-tolerance", "0.05", "--splatv-pieces", "17"])):
+        out = tmp_path / name
+        code, _, err = run_cli(["export", "--run", str(baked), "--out", str(out), "--format", "splatv", *flags])
+        assert code == 0, err
+        records[name] = splatv_records((out / "scene.splatv").read_bytes())
+    run = load_run(baked, "cpu")
+    dataset = run.scene()
+    cameras = [f.camera for f in (*dataset.test, *dataset.train)]
+    assert records["tight"] == fit_splatv(run, cameras, 0.05, 17).report["records"] > records["default"]
+
+
 def test_splatv_fit_keeps_motion_its_model_can_hold():
     from liquidgs.bake.pieces import fit_splatv
 
@@ -436,6 +460,10 @@ def test_splatv_fit_keeps_motion_its_model_can_hold():
         (["--format", "plyseq"], "--format plyseq needs --sequence N"),
         (["--format", "splatv", "--time", "0.5"], "--time writes single PLYs"),
         (["--format", "gif"], "unknown format 'gif'"),
+        (["--format", "splatv", "--splatv-tolerance", "0"], "--splatv-tolerance must be a positive number, got 0.0"),
+        (["--format", "splatv", "--splatv-tolerance", "nan"], "--splatv-tolerance must be a positive number"),
+        (["--format", "splatv", "--splatv-pieces", "34"], "--splatv-pieces must be between 1 and 33, got 34"),
+        (["--format", "web", "--splatv-tolerance", "0.2"], "splatv fit: no effect with --format web"),
     ],
 )
 def test_export_format_bad_input_is_one_line(flags, expected, baked, tmp_path, capsys):

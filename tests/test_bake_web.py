@@ -22,12 +22,15 @@ import torch
 from PIL import Image
 
 from browser import launched_chromium
+from liquidgs.bake.motion import keyframe_times
+from liquidgs.bake.tracks import ALL_WIDE, Tracks, pack, unpack
+from liquidgs.bake.web import SECTION_TYPES
 from liquidgs.eval.metrics import psnr
 from liquidgs.media import to_uint8
 from liquidgs.train.dataset import load_run_dataset
 from liquidgs.train.run import load_run
 from shared_data import require_installed
-from tiny_runs import coloured_bake, one_line_error, run_cli
+from tiny_runs import coloured_bake, one_line_error, rehash_baked_scene, run_cli
 
 REPO = Path(__file__).resolve().parents[1]
 ARTIFACTS = Path(os.environ.get("LIQUIDGS_TEST_ARTIFACTS", REPO / "test-artifacts")) / "web"
@@ -52,36 +55,93 @@ def baked(tiny_mlp_run, tmp_path_factory) -> Path:
 
 
 @pytest.fixture(scope="module")
-def web(baked) -> Path:
-    code, _, err = run_cli(["export", "--run", str(baked), "--format", "web"])
+def mixed(baked, tmp_path_factory) -> Path:
+    """The coloured bake with every third Gaussian held still (one keyframe: its state at time 0) and
+    its channel groups' code widths in all eight combinations, so that the web file holds tracks of
+    more than one keyframe count and codes of both widths, as a trained scene's do."""
+    out = tmp_path_factory.mktemp("mixed") / "baked"
+    shutil.copytree(baked, out, ignore=shutil.ignore_patterns("export", "html", "splatv"))
+    payload = torch.load(out / "scene.pt", weights_only=True)
+    n = payload["tracks"]["counts"].shape[0]
+    tracks = unpack(payload["tracks"], n)
+    counts = torch.where(torch.arange(n) % 3 == 0, 1, tracks.counts)
+    groups = []
+    for count in sorted(set(counts.tolist())):
+        index = (counts == count).nonzero().flatten()
+        groups.append((index, tracks.sampled(keyframe_times(count) if count > 1 else torch.zeros(1))[:, index]))
+    payload["tracks"] = pack(Tracks(counts, groups), torch.arange(n) % (ALL_WIDE + 1))
+    torch.save(payload, out / "scene.pt")
+    rehash_baked_scene(out)
+    return out
+
+
+@pytest.fixture(scope="module")
+def web(mixed) -> Path:
+    code, _, err = run_cli(["export", "--run", str(mixed), "--format", "web"])
     assert code == 0, err
-    return baked / "export" / "web"
+    return mixed / "export" / "web"
 
 
-def test_web_folder_holds_the_player_and_the_scene(web, baked):
-    assert sorted(p.name for p in web.iterdir()) == ["index.html", "player.js", "scene.bin", "scene.json"]
+def web_sections(web: Path) -> dict[str, np.ndarray]:
+    """scene.bin's sections by name, as scene.json lays them out."""
     meta = json.loads((web / "scene.json").read_text())
-    run = load_run(baked, "cpu")
-    k, n = run.keyframes.shape[:2]
-    stored = meta["sh_stored"]
-    floats = 2 * n * 10 + n + n * stored * 3
-    data = (web / "scene.bin").read_bytes()
-    assert len(data) == 4 * floats + 2 * k * n * 10
-    head = np.frombuffer(data[: 4 * floats], dtype="<f4")
-    low, span = head[: n * 10].reshape(n, 10), head[n * 10 : 2 * n * 10].reshape(n, 10)
-    assert np.array_equal(head[2 * n * 10 : 2 * n * 10 + n], torch.sigmoid(run.params["opacities"]).numpy())
-    quantised = np.frombuffer(data[4 * floats :], dtype="<u2").reshape(k, n, 10)
-    keyframes = low + span * (quantised / 65535)
-    assert np.all(np.abs(keyframes - run.keyframes.numpy()) <= span / 131070 + 1e-6)
+    data, offset, out = (web / "scene.bin").read_bytes(), 0, {}
+    for name, kind, length in meta["sections"]:
+        dtype = np.dtype(SECTION_TYPES[kind])
+        assert offset % dtype.itemsize == 0, name  # the page reads each into a typed array at its offset
+        out[name] = np.frombuffer(data, dtype=dtype, count=length, offset=offset)
+        offset += length * dtype.itemsize
+    assert offset == len(data)
+    return out
+
+
+def test_web_folder_holds_the_player_and_the_scene(web, mixed):
+    assert sorted(p.name for p in web.iterdir()) == ["index.html", "player.js", "scene.bin", "scene.json"]
+    payload = torch.load(mixed / "scene.pt", weights_only=True)
+    stored = web_sections(web)
+    # The scene as baked, value for value: the page decodes what liquidgs render decodes.
+    for name, values in {
+        **{key: payload["tracks"][key] for key in ("low", "span", "counts", "wide", "codes8", "codes16")},
+        "opacities": payload["params"]["opacities"],
+        "sh0": payload["params"]["sh0"],
+        "sh_low": payload["sh_rest"]["low"],
+        "sh_span": payload["sh_rest"]["span"],
+        "sh_codes": payload["sh_rest"]["codes"],
+    }.items():
+        assert np.array_equal(stored[name], values.flatten().numpy()), name
     html = (web / "index.html").read_text() + (web / "player.js").read_text()
     assert "http://" not in html and "https://" not in html  # nothing fetched from elsewhere
 
 
-def test_web_export_refuses_a_taken_folder(web, baked, capsys):
+def test_a_still_gaussian_costs_one_keyframe_in_the_web_file(web):
+    """Each Gaussian costs its fixed part and the codes of the keyframes its motion needs: none for
+    one that does not move (its value is its `low`), where the format before gave every Gaussian
+    the most keyframes of any."""
+    meta = json.loads((web / "scene.json").read_text())
+    stored = web_sections(web)
+    counts, wide = stored["counts"].astype(np.int64), stored["wide"].astype(np.int64)
+    assert (counts == 1).any() and (counts > 1).any()
+    per_keyframe = sum(width * (1 + ((wide >> group) & 1)) for group, width in enumerate((3, 4, 3)))
+    codes = np.where(counts > 1, counts * per_keyframe, 0)
+    fixed = 4 * 10 + 2 + 2 * 10 + 2 + 2 * 3 + 2 * 2 + 1 + 3 * (meta["sh_stored"] - 1)
+    assert (web / "scene.bin").stat().st_size == meta["gaussians"] * fixed + codes.sum()
+
+
+def test_web_export_of_a_run_is_its_bake(tiny_mlp_run, tmp_path):
+    """A run given to the web export is baked on the way as `bake` would (its default budget, the
+    pixel floor of the scene's cameras): the same scene.bin."""
+    assert run_cli(["export", "--run", str(tiny_mlp_run), "--format", "web", "--out", str(tmp_path / "run")])[0] == 0
+    assert run_cli(["bake", "--run", str(tiny_mlp_run), "--out", str(tmp_path / "baked")])[0] == 0
+    assert run_cli(["export", "--run", str(tmp_path / "baked"), "--format", "web"])[0] == 0
+    direct, via_bake = tmp_path / "run" / "web" / "scene.bin", tmp_path / "baked" / "export" / "web" / "scene.bin"
+    assert direct.read_bytes() == via_bake.read_bytes()
+
+
+def test_web_export_refuses_a_taken_folder(web, mixed, capsys):
     from liquidgs.cli import main as cli
 
     before = sorted(p.name for p in web.iterdir())
-    assert cli(["export", "--run", str(baked), "--format", "web"]) == 2
+    assert cli(["export", "--run", str(mixed), "--format", "web"]) == 2
     assert "already exists" in one_line_error(capsys)
     assert sorted(p.name for p in web.iterdir()) == before
 
@@ -146,8 +206,8 @@ WINDOW = {"width": 1280, "height": 720}
 
 
 @pytest.fixture(scope="module")
-def scene(baked):
-    run = load_run(baked, "cpu")
+def scene(mixed):
+    run = load_run(mixed, "cpu")
     dataset = load_run_dataset(run.config)
     return run, [*dataset.test, *dataset.train], torch.tensor(dataset.background), len(dataset.test)
 
@@ -239,6 +299,25 @@ def test_player_in_chromium_matches_liquidgs_render(browser, served, scene):
     assert timing["frames"] == 10 and timing["cpu"] > 0 and timing["gpu"] > 0
     assert 10 * timing["total"] >= 0.7 * wall_ms, (timing, wall_ms)
     assert "ms/frame" in label and "fps" not in label, label
+    page.close()
+
+
+@pytest.mark.slow  # Chromium
+def test_player_decodes_the_scene_as_liquidgs_does(browser, served, scene):
+    """The page's decode of scene.bin (keyframe codes per count, float16, SH codes) and its spline,
+    held to the baked scene's own at times on, between and at the ends of the keyframes."""
+    run = scene[0]
+    page, problems, _ = opened_page(browser, served)
+    opacities = torch.sigmoid(run.params["opacities"])
+    sh = torch.cat([run.params["sh0"], run.params["shN"]], dim=1)
+    for time in (0.0, 0.125, 0.37, 0.9, 1.0):
+        decoded = page.evaluate(f"player.gaussians({time})")
+        state = torch.tensor(decoded["state"]).reshape(-1, 10)
+        state[:, 3:7] = torch.nn.functional.normalize(state[:, 3:7], dim=-1)
+        assert torch.allclose(state, run.tracks.at_time(time), atol=2e-6, rtol=1e-5), time
+    assert torch.allclose(torch.tensor(decoded["opacities"]), opacities, atol=1e-7, rtol=1e-6)
+    assert torch.allclose(torch.tensor(decoded["sh"]).reshape(sh.shape), sh, atol=1e-7, rtol=1e-6)
+    assert not problems, problems
     page.close()
 
 
@@ -365,10 +444,10 @@ def test_folder_opened_from_disk_says_to_serve_it(browser, web):
 
 
 @pytest.fixture(scope="module")
-def single_file(baked) -> Path:
-    code, _, err = run_cli(["export", "--run", str(baked), "--format", "html", "--out", str(baked / "html")])
+def single_file(mixed) -> Path:
+    code, _, err = run_cli(["export", "--run", str(mixed), "--format", "html", "--out", str(mixed / "html")])
     assert code == 0, err
-    return baked / "html" / "scene.html"
+    return mixed / "html" / "scene.html"
 
 
 @pytest.mark.slow  # Chromium

@@ -26,7 +26,7 @@ from pathlib import Path
 import torch
 
 from liquidgs.bake.motion import CHANNELS, POSITION, QUATERNION, SCALE
-from liquidgs.bake.tracks import Tracks, from_row_codes, unpack
+from liquidgs.bake.tracks import Tracks, from_row_codes, row_codes, unpack
 from liquidgs.cameras import Camera
 from liquidgs.data import SceneDataset
 from liquidgs.data.cameras_file import CAMERAS_FILE, dataset_from_cameras
@@ -67,6 +67,9 @@ class BakedRun:
     sh_degree: int
     iteration: int
     manifest: dict
+    stored: dict | None
+    """scene.pt's payload as stored (stored_scene), for a player that decodes it itself (the web
+    export); None for a folder of the format before."""
     field = None
     """No network: readers that need one (field.pt, Monte-Carlo noise) check for None."""
     finished = True
@@ -188,7 +191,8 @@ def load_baked(folder: str | Path, device: str | torch.device = "cpu") -> BakedR
     params = torch.nn.ParameterDict(
         {k: torch.nn.Parameter(params[k].float().to(device), requires_grad=False) for k in PARAM_KEYS}
     )
-    return BakedRun(folder, cfg, params, tracks, manifest["sh_degree"], manifest["iteration"], manifest)
+    stored = payload if manifest["format"] == BAKED_FORMAT else None
+    return BakedRun(folder, cfg, params, tracks, manifest["sh_degree"], manifest["iteration"], manifest, stored)
 
 
 def scene_payload(payload: dict, found: str) -> tuple[dict[str, torch.Tensor], Tracks, int]:
@@ -208,6 +212,16 @@ def scene_payload(payload: dict, found: str) -> tuple[dict[str, torch.Tensor], T
         raise ValueError(f"opacities and SH coefficients of {n} Gaussians disagree in number")
     stored = payload["tracks"]
     return params, unpack(stored, n), non_finite([*params.values(), stored["low"], stored["span"]])
+
+
+def stored_scene(params, stored_tracks: dict[str, torch.Tensor]) -> dict:
+    """scene.pt's payload: the Gaussians' STORED_PARAMS in float16, their higher SH coefficients as
+    8-bit codes of each Gaussian's range, and their tracks as tracks.pack() stores them."""
+    return {
+        "params": {k: params[k].detach().cpu().to(torch.float16).contiguous() for k in STORED_PARAMS},
+        "sh_rest": row_codes(params["shN"]),
+        "tracks": stored_tracks,
+    }
 
 
 def non_finite(tensors: list[torch.Tensor]) -> int:

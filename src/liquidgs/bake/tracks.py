@@ -36,6 +36,8 @@ from liquidgs.bake.motion import (
 
 CHANNEL_GROUPS = (POSITION, QUATERNION, SCALE)
 CODE_LEVELS = {8: 255, 16: 65535}
+ALL_WIDE = (1 << len(CHANNEL_GROUPS)) - 1
+"""`wide` with every channel group on 16 bits."""
 
 
 @dataclass
@@ -140,7 +142,7 @@ def unpack(payload: dict[str, torch.Tensor], n: int) -> Tracks:
     low, span = payload["low"].float(), payload["span"].float()
     if counts.shape != (n,) or wide.shape != (n,) or low.shape != (n, CHANNELS) or span.shape != (n, CHANNELS):
         raise ValueError(f"motion tables do not fit {n} Gaussians")
-    if n and (int(counts.min()) < 1 or int(wide.max()) > 7):
+    if n and (int(counts.min()) < 1 or int(wide.max()) > ALL_WIDE):
         raise ValueError("keyframe counts below 1 or unknown code widths")
     streams = {8: payload["codes8"].float(), 16: payload["codes16"].float() + 32768}
     used = {8: 0, 16: 0}

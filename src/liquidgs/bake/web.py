@@ -5,12 +5,14 @@ index.html   the page: a canvas filling the window, play / pause, time slider, c
              (#t=TIME&camera=NAME) to the time and camera shown; drag orbits, right-drag pans,
              wheel zooms
 player.js    the WebGL2 player (bake/web/player.js): no library, nothing fetched but the two below
-scene.json   Gaussian and keyframe counts, SH degree, background, the dataset's cameras, and the
-             source record of the run or baked scene it plays (run_folder.provenance)
-scene.bin    little-endian: float32 low [N, 10] and span [N, 10] of each Gaussian's channels over
-             time, opacities [N] (activated), SH coefficients [N, B, 3]; then the keyframes [K, N, 10]
-             (bake/motion.py) as uint16 q, value = low + span * q / 65535 (error <= span / 131070:
-             half the bytes of float32, for differences no pixel shows)
+scene.json   Gaussian count, SH degree, background, the dataset's cameras, the source record of the
+             run or baked scene it plays (run_folder.provenance), and scene.bin's sections
+scene.bin    the baked scene as scene.pt stores it (bake/scene.py, stored_scene): each Gaussian's
+             keyframes as many as its motion needs (one if it does not move), as the 8- or 16-bit
+             codes of bake/tracks.py; opacity and SH degree 0 float16, the higher SH 8-bit codes.
+             Little-endian sections one after another, named with their type and length in
+             scene.json's "sections", the 4-byte ones first, then the 2-byte ones, then the bytes,
+             so that each starts aligned for the typed array the page reads it into.
 
 scene.html (--format html) is index.html with player.js, scene.json and scene.bin (base64) inline.
 """
@@ -26,14 +28,18 @@ import torch
 
 from liquidgs.atomic import build_atomically, write_atomic, write_text_atomic
 from liquidgs.bake.distil import BakeSettings, distil
-from liquidgs.bake.motion import POSITION, interpolate
+from liquidgs.bake.motion import POSITION
+from liquidgs.bake.scene import stored_scene
+from liquidgs.bake.tracks import ALL_WIDE, pack, unpack
 from liquidgs.data.capture import refuse_taken
 from liquidgs.errors import check_finite
 
+WEB_FORMAT = "liquidgs-web/2"
 PLAYER_FILES = ("index.html", "player.js")
 PLAYER_DIR = Path(__file__).parent / "web"
 LOOP_FPS = 24.0
 """Playback runs through the capture's distinct frame times at this rate."""
+SECTION_TYPES = {"float32": "<f4", "int16": "<i2", "float16": "<f2", "uint8": "u1"}
 
 
 def web_camera(frame, split: str) -> dict:
@@ -53,48 +59,63 @@ def web_camera(frame, split: str) -> dict:
     }
 
 
-def keyframes_of(run) -> torch.Tensor:
-    """A baked scene's keyframes, or a run's distilled with the default budget."""
-    if run.field is None:
-        return run.keyframes
-    return distil(run, BakeSettings()).keyframes
+def baked_payload(run, frames) -> dict:
+    """scene.pt's payload: a baked scene's as stored, a run's as `bake` would store it (its default
+    budget, the pixel floor from `frames`' cameras)."""
+    if run.field is not None:
+        return stored_scene(run.params, distil(run, BakeSettings(), [f.camera for f in frames]).stored)
+    if run.stored is not None:
+        return run.stored
+    # The format before (liquidgs-baked/2): float32 keyframes, stored here on 16 bits.
+    wide = torch.full((run.tracks.gaussians,), ALL_WIDE, dtype=torch.uint8)
+    return stored_scene(run.params, pack(run.tracks, wide))
 
 
-def quantise(keyframes: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, np.ndarray]:
-    """Per Gaussian and channel: the lowest value over the keyframes, the range, and each keyframe
-    as a 16-bit fraction of the range."""
-    low = keyframes.amin(dim=0)
-    span = keyframes.amax(dim=0) - low
-    fraction = (keyframes - low) / torch.where(span > 0, span, torch.ones_like(span))
-    return low, span, (fraction * 65535).round().clamp(0, 65535).numpy().astype(np.uint16)
+def sections(payload: dict) -> list[tuple[str, str, torch.Tensor]]:
+    """scene.bin's sections (name, type, values) in file order: wider types first."""
+    tracks, params, sh_rest = payload["tracks"], payload["params"], payload["sh_rest"]
+    return [
+        ("low", "float32", tracks["low"]),
+        ("counts", "int16", tracks["counts"]),
+        ("codes16", "int16", tracks["codes16"]),
+        ("span", "float16", tracks["span"]),
+        ("opacities", "float16", params["opacities"]),
+        ("sh0", "float16", params["sh0"]),
+        ("sh_low", "float16", sh_rest["low"]),
+        ("sh_span", "float16", sh_rest["span"]),
+        ("wide", "uint8", tracks["wide"]),
+        ("codes8", "uint8", tracks["codes8"]),
+        ("sh_codes", "uint8", sh_rest["codes"]),
+    ]
 
 
 def web_scene(run, dataset) -> tuple[dict, bytes]:
     """scene.json's content and scene.bin's bytes for `run` (baked on the way if it is a run)."""
-    keyframes = keyframes_of(run).detach().float().cpu()
-    n = keyframes.shape[1]
-    sh = torch.cat([run.params["sh0"], run.params["shN"]], dim=1).detach().float().cpu()
-    opacities = torch.sigmoid(run.params["opacities"].detach().float().cpu())
-    check_finite(run.run_dir, "the Gaussians and their keyframes", [keyframes, opacities, sh])
     frames = [*dataset.test, *dataset.train]
+    payload = baked_payload(run, frames)
+    parts = sections(payload)
+    check_finite(run.run_dir, "the Gaussians and their keyframes as stored", [values for _, _, values in parts])
+    n = int(payload["tracks"]["counts"].shape[0])
     splits = ["test"] * len(dataset.test) + ["train"] * len(dataset.train)
     times = {round(float(f.time), 6) for f in frames}
+    positions = unpack(payload["tracks"], n).at_time(0.5)[:, POSITION]
     meta = {
-        "format": "liquidgs-web/1",
+        "format": WEB_FORMAT,
         "gaussians": n,
-        "keyframes": keyframes.shape[0],
+        "keyframes": int(payload["tracks"]["counts"].max()),
         "sh_degree": run.sh_degree,
         "sh_bases": (run.sh_degree + 1) ** 2,
-        "sh_stored": sh.shape[1],
+        "sh_stored": 1 + int(payload["sh_rest"]["codes"].shape[1]),
         "background": [float(c) for c in dataset.background],
-        "target": interpolate(keyframes, 0.5)[:, POSITION].median(dim=0).values.tolist(),
+        "target": positions.median(dim=0).values.tolist(),
         "duration_s": max(len(times) / LOOP_FPS, 2.0),
         "cameras": [web_camera(f, split) for f, split in zip(frames, splits)],
         "source": run.source(),
+        "sections": [[name, kind, int(values.numel())] for name, kind, values in parts],
     }
-    low, span, quantised = quantise(keyframes)
-    blob = b"".join(np.ascontiguousarray(t.numpy(), dtype="<f4").tobytes() for t in (low, span, opacities, sh))
-    blob += np.ascontiguousarray(quantised, dtype="<u2").tobytes()
+    blob = b"".join(
+        np.ascontiguousarray(values.cpu().numpy(), dtype=SECTION_TYPES[kind]).tobytes() for _, kind, values in parts
+    )
     return meta, blob
 
 

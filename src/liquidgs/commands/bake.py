@@ -23,14 +23,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-import torch
 from rich.console import Console
 
 from liquidgs.atomic import build_atomically, save_torch_atomic, write_json_atomic, write_text_atomic
 from liquidgs.bake.distil import BakeSettings, check_finished, describe_over_budget, distil, field_samples
 from liquidgs.bake.motion import CHANNELS
-from liquidgs.bake.scene import BAKED_FORMAT, MANIFEST, SCENE, STORED_PARAMS, is_baked
-from liquidgs.bake.tracks import row_codes
+from liquidgs.bake.scene import BAKED_FORMAT, MANIFEST, SCENE, STORED_PARAMS, is_baked, stored_scene
 from liquidgs.commands.progress import progress_for
 from liquidgs.data.cameras_file import CAMERAS_FILE, cameras_record
 from liquidgs.data.capture import refuse_taken
@@ -116,12 +114,8 @@ def bake(args: BakeArgs, console: Console | None = None) -> dict:
     check_finite(
         args.run, "the Gaussians and their keyframes", [*params.values(), run.params["shN"], distilled.stored["low"]]
     )
-    sh_rest = row_codes(run.params["shN"])
-    payload = {
-        "params": {k: v.to(torch.float16).contiguous() for k, v in params.items()},
-        "sh_rest": sh_rest,
-        "tracks": distilled.stored,
-    }
+    payload = stored_scene(run.params, distilled.stored)
+    sh_rest = payload["sh_rest"]
     # float16 overflows to infinity
     as_stored = [*payload["params"].values(), distilled.stored["span"], sh_rest["low"], sh_rest["span"]]
     check_finite(args.run, "the Gaussians and their keyframes as stored", as_stored)

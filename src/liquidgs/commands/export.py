@@ -45,7 +45,7 @@ from liquidgs.bake.formats import (
     splatv_camera,
     write_plyseq,
 )
-from liquidgs.bake.pieces import agreement, fit_splatv
+from liquidgs.bake.pieces import MAX_PIECES, TOLERANCE, agreement, fit_splatv
 from liquidgs.bake.spz import write_spz
 from liquidgs.bake.web import write_web, write_web_page
 from liquidgs.errors import ConfigError, check_finite
@@ -70,10 +70,21 @@ class ExportArgs:
     """ply: the PLYs above; plyseq: OUT/sequence.zip of --sequence PLYs; splatv: OUT/scene.splatv;
     web: OUT/web, a static folder that plays the scene in a browser; html: OUT/scene.html, that
     page as one file that opens from disk; spz: OUT/time_T.spz per --time, static SPZ files."""
+    splatv_tolerance: float = TOLERANCE
+    """--format splatv: each piece's budget, its position within this fraction of the Gaussian's size
+    (counted as at least 4 pixel widths) and its rotation within this many radians wherever it shows.
+    Lower keeps more of the motion in more pieces: on the demo 0.5 gave 34.5 dB against the field at
+    2.9 records per Gaussian, 0.1 (with --splatv-pieces 17) 40.9 dB at 14.9 (docs/results/sharing.md)."""
+    splatv_pieces: int = MAX_PIECES
+    """--format splatv: the most temporal pieces per Gaussian (of 1, 2, 3, 5, 9, 17, 33: the largest
+    not above it); a Gaussian still over budget at the most is written with the most."""
     device: str = "auto"
     """auto (CUDA where torch sees a GPU, else the CPU), cpu, cuda or cuda:N."""
 
 
+MOST_SPLATV_PIECES = 33
+"""The most --splatv-pieces: at 33 a piece's window still shows it at about 11 of the 129 motion samples
+its cubic is fitted to; at 65, about 5."""
 MAX_SEQUENCE = 100_000
 """The most --sequence frames (one PLY each): 100x a 1,000-frame capture."""
 
@@ -102,6 +113,14 @@ def export_run(args: ExportArgs, console: Console | None = None) -> list[Path]:
         args.format in ("splatv", "web", "html", "spz") and args.sequence
     ):  # their motion is continuous: no frames to count
         raise ConfigError(f"--sequence has no effect with --format {args.format}: it sets the frames of ply and plyseq")
+    if not (math.isfinite(args.splatv_tolerance) and args.splatv_tolerance > 0):
+        raise ConfigError(f"--splatv-tolerance must be a positive number, got {args.splatv_tolerance}")
+    if not 1 <= args.splatv_pieces <= MOST_SPLATV_PIECES:
+        raise ConfigError(f"--splatv-pieces must be between 1 and {MOST_SPLATV_PIECES}, got {args.splatv_pieces}")
+    if args.format != "splatv" and (args.splatv_tolerance, args.splatv_pieces) != (TOLERANCE, MAX_PIECES):
+        raise ConfigError(
+            f"--splatv-tolerance and --splatv-pieces set the splatv fit: no effect with --format {args.format}"
+        )
     if args.format == "plyseq" and args.sequence < 2:
         raise ConfigError("--format plyseq needs --sequence N, the number of frames (at least 2)")
     run = load_run(args.run, args.device)
@@ -113,7 +132,7 @@ def export_run(args: ExportArgs, console: Console | None = None) -> list[Path]:
     if args.format == "plyseq":
         return [write_plyseq(out / "sequence.zip", run, args.sequence)]
     if args.format == "splatv":
-        return [export_splatv(run, out / "scene.splatv", console)]
+        return [export_splatv(run, out / "scene.splatv", console, args.splatv_tolerance, args.splatv_pieces)]
     if args.format == "web":
         return [write_web(out / "web", run, run.scene())]
     if args.format == "html":
@@ -159,13 +178,15 @@ def export_sequence(run, folder: Path, frames: int, comments: tuple[str, ...], c
     return [folder / name for name in names]
 
 
-def export_splatv(run, path: Path, console: Console | None) -> Path:
+def export_splatv(
+    run, path: Path, console: Console | None, tolerance: float = TOLERANCE, pieces: int = MAX_PIECES
+) -> Path:
     """splaTV's motion model fitted to the run (or baked scene); the dataset's cameras go along,
     test views first (the player starts at the first), resized for a player's window. Prints the
     pieces, the share of the motion kept and the PSNR of the file against the run on its test views."""
     dataset = run.scene()
     frames = [*dataset.test, *dataset.train]
-    fitted = fit_splatv(run, [f.camera for f in frames])
+    fitted = fit_splatv(run, [f.camera for f in frames], tolerance, pieces)
     check_finite(run.run_dir, "the fitted splatv model", vars(fitted.model))
     cameras = [splatv_camera(f.camera, f.name, SPLATV_CAMERA_WIDTH) for f in frames]
     data = splatv_bytes(fitted.model, cameras, run.source())

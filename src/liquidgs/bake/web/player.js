@@ -86,20 +86,112 @@ function fitIntrinsics(c, width, height) {
     cy: c.cy * s + (height - c.height * s) / 2 };
 }
 
+// scene.bin's sections (scene.json "sections": name, type, length, in file order) as typed arrays.
+const SECTION_TYPES = { float32: Float32Array, int16: Int16Array, float16: Uint16Array, uint8: Uint8Array };
+
+function readSections(meta, buffer) {
+  const out = {};
+  let offset = 0;
+  for (const [name, type, length] of meta.sections) {
+    const Type = SECTION_TYPES[type];
+    out[name] = new Type(buffer, offset, length);
+    offset += length * Type.BYTES_PER_ELEMENT;
+  }
+  return out;
+}
+
+// IEEE half-precision bits to a number (subnormals, infinities and NaN included).
+function halfToFloat(h) {
+  const sign = h & 0x8000 ? -1 : 1, exponent = (h >> 10) & 0x1f, fraction = h & 0x3ff;
+  if (exponent === 0) return sign * fraction * 2 ** -24;
+  if (exponent === 31) return fraction ? NaN : sign * Infinity;
+  return sign * (1 + fraction / 1024) * 2 ** (exponent - 15);
+}
+
+const halves = (bits) => Float32Array.from(bits, halfToFloat);
+
+// The channel groups (position, rotation, scale) whose codes are stored block by block, and the top
+// code of 8 and 16 bits: bake/tracks.py.
+const CHANNEL_GROUPS = [[0, 3], [3, 7], [7, 10]];
+const CODE_LEVELS = { 8: 255, 16: 65535 };
+
+// Each keyframe count's Gaussians (ascending) and their keyframes [K, n, CHANNELS], decoded from the
+// codes as bake/tracks.py's unpack() does: block by block, count ascending (the Gaussians of one
+// keyframe hold their value in `low`), then channel group, then 8 before 16 bits.
+function decodeTracks(sections, n) {
+  const { counts, wide, low, codes8, codes16 } = sections;
+  const span = halves(sections.span);
+  const members = new Map();
+  for (let i = 0; i < n; i++) {
+    if (!members.has(counts[i])) members.set(counts[i], []);
+    members.get(counts[i]).push(i);
+  }
+  const streams = { 8: [codes8, 0, 0], 16: [codes16, 32768, 0] }; // codes, offset, read so far
+  const groups = [];
+  for (const count of [...members.keys()].sort((a, b) => a - b)) {
+    if (count < 1) throw new SceneError(`scene.bin: a keyframe count of ${count}; export the scene again`);
+    const index = Uint32Array.from(members.get(count)), size = index.length;
+    const keys = new Float32Array(count * size * CHANNELS);
+    for (let j = 0; j < size; j++) {
+      for (let k = 0; k < count; k++) keys.set(low.subarray(index[j] * CHANNELS, (index[j] + 1) * CHANNELS), (k * size + j) * CHANNELS);
+    }
+    if (count > 1) {
+      CHANNEL_GROUPS.forEach(([first, last], group) => {
+        for (const bits of [8, 16]) {
+          const chosen = [];
+          for (let j = 0; j < size; j++) if (((wide[index[j]] >> group) & 1) === (bits === 16 ? 1 : 0)) chosen.push(j);
+          const stream = streams[bits], width = last - first;
+          if (stream[2] + count * chosen.length * width > stream[0].length) {
+            throw new SceneError(`scene.bin: its ${bits}-bit codes end before the keyframes they hold; export the scene again`);
+          }
+          for (let k = 0; k < count; k++) {
+            chosen.forEach((j, m) => {
+              const gaussian = index[j] * CHANNELS;
+              for (let c = 0; c < width; c++) {
+                const code = stream[0][stream[2] + (k * chosen.length + m) * width + c] + stream[1];
+                keys[(k * size + j) * CHANNELS + first + c] = low[gaussian + first + c] + span[gaussian + first + c] * code / CODE_LEVELS[bits];
+              }
+            });
+          }
+          stream[2] += count * chosen.length * width;
+        }
+      });
+    }
+    groups.push({ count, index, keys });
+  }
+  if (streams[8][2] !== codes8.length || streams[16][2] !== codes16.length) {
+    throw new SceneError("scene.bin: more keyframe codes than its keyframe counts hold; export the scene again");
+  }
+  return groups;
+}
+
+// bake/motion.py's spline_weights: the first keyframe and the Catmull-Rom weights of the (up to) four
+// keyframes around `time` among `count` uniform ones, the mirrored phantom keyframe at either end folded in.
+function splineWeights(count, time) {
+  if (count === 1) return [0, [1]];
+  const u = Math.min(Math.max(time, 0), 1) * (count - 1);
+  const i = Math.min(Math.floor(u), count - 2), f = u - i, f2 = f * f, f3 = f2 * f;
+  let w0 = 0.5 * (2 * f2 - f - f3), w1 = 0.5 * (2 - 5 * f2 + 3 * f3), w2 = 0.5 * (f + 4 * f2 - 3 * f3), w3 = 0.5 * (f3 - f2);
+  let first = i - 1;
+  if (i === 0) { w1 += 2 * w0; w2 -= w0; w0 = null; first = i; }
+  if (i + 2 === count) { w1 -= w3; w2 += 2 * w3; w3 = null; }
+  return [first, [w0, w1, w2, w3].filter((w) => w !== null)];
+}
+
 class Player {
   constructor(canvas, meta, buffer) {
     this.meta = meta;
-    const n = meta.gaussians, k = meta.keyframes;
-    let offset = 0;
-    const take = (count) => { const a = new Float32Array(buffer, offset, count); offset += count * 4; return a; };
-    const low = take(n * CHANNELS), span = take(n * CHANNELS);
-    this.opacities = take(n);
-    this.sh = take(n * meta.sh_stored * 3);
-    const quantised = new Uint16Array(buffer, offset, k * n * CHANNELS);
-    this.keyframes = new Float32Array(k * n * CHANNELS);
-    for (let j = 0; j < k * n * CHANNELS; j++) {
-      const c = j % (n * CHANNELS);
-      this.keyframes[j] = low[c] + span[c] * (quantised[j] / 65535);
+    const n = meta.gaussians, stored = meta.sh_stored, sections = readSections(meta, buffer);
+    this.groups = decodeTracks(sections, n);
+    this.opacities = Float32Array.from(halves(sections.opacities), (x) => 1 / (1 + Math.exp(-x)));
+    // SH [N, stored, 3]: degree 0 as stored, the higher ones from their 8-bit codes of each Gaussian's range.
+    const sh0 = halves(sections.sh0), shLow = halves(sections.sh_low), shSpan = halves(sections.sh_span);
+    this.sh = new Float32Array(n * stored * 3);
+    for (let i = 0; i < n; i++) {
+      for (let c = 0; c < 3; c++) this.sh[i * stored * 3 + c] = sh0[i * 3 + c];
+      for (let j = 3; j < stored * 3; j++) {
+        this.sh[i * stored * 3 + j] = shLow[i] + shSpan[i] * sections.sh_codes[i * (stored - 1) * 3 + j - 3] / CODE_LEVELS[8];
+      }
     }
     this.state = new Float32Array(n * CHANNELS);
     this.splats = new Float32Array(n * FLOATS_PER_SPLAT);
@@ -166,19 +258,21 @@ class Player {
     this.viewport = gl.getUniformLocation(program, "viewport");
   }
 
+  // Every Gaussian's state at `time`: per keyframe count, one weighted sum of the (up to) four
+  // keyframes around it (quaternions left unnormalised: project() normalises them).
   interpolate(time) {
-    const k = this.meta.keyframes, n = this.meta.gaussians, key = this.keyframes, out = this.state;
-    const stride = n * CHANNELS;
-    if (k === 1) { out.set(key.subarray(0, stride)); return; }
-    const u = Math.min(Math.max(time, 0), 1) * (k - 1);
-    const i = Math.min(Math.floor(u), k - 2), f = u - i, f2 = f * f, f3 = f2 * f;
-    const o1 = i * stride, o2 = (i + 1) * stride;
-    const o0 = i > 0 ? (i - 1) * stride : -1, o3 = i + 2 < k ? (i + 2) * stride : -1;
-    for (let j = 0; j < stride; j++) {
-      const p1 = key[o1 + j], p2 = key[o2 + j];
-      const p0 = o0 >= 0 ? key[o0 + j] : 2 * p1 - p2;
-      const p3 = o3 >= 0 ? key[o3 + j] : 2 * p2 - p1;
-      out[j] = 0.5 * (2 * p1 + (p2 - p0) * f + (2 * p0 - 5 * p1 + 4 * p2 - p3) * f2 + (3 * p1 - p0 - 3 * p2 + p3) * f3);
+    const out = this.state;
+    for (const { count, index, keys } of this.groups) {
+      const [first, weights] = splineWeights(count, time);
+      const stride = index.length * CHANNELS;
+      for (let j = 0; j < index.length; j++) {
+        const o = index[j] * CHANNELS;
+        for (let c = 0; c < CHANNELS; c++) {
+          let value = 0;
+          for (let m = 0; m < weights.length; m++) value += weights[m] * keys[(first + m) * stride + j * CHANNELS + c];
+          out[o + c] = value;
+        }
+      }
     }
   }
 
@@ -341,13 +435,33 @@ class Player {
 
 // --- loading: the scene beside the page (scene.json, scene.bin) or inside it (the single-file export)
 
-const FORMAT = "liquidgs-web/1";
+const FORMAT = "liquidgs-web/2";
 
 class SceneError extends Error {}
 
+// The sections' lengths scene.json promises for its Gaussians, checked before any is read.
+function sectionsProblem(meta) {
+  const n = meta.gaussians, higher = (meta.sh_stored - 1) * 3;
+  const need = { low: n * CHANNELS, counts: n, span: n * CHANNELS, opacities: n, sh0: n * 3, sh_low: n, sh_span: n,
+    wide: n, sh_codes: n * higher, codes8: null, codes16: null };
+  if (!Array.isArray(meta.sections)) return "no sections";
+  const names = meta.sections.map((s) => s[0]);
+  for (const [name, length] of Object.entries(need)) {
+    if (!names.includes(name)) return `no section "${name}"`;
+    const section = meta.sections[names.indexOf(name)];
+    if (!(section[1] in SECTION_TYPES) || !Number.isInteger(section[2]) || section[2] < 0) return `section "${name}" is malformed`;
+    if (length !== null && section[2] !== length) return `section "${name}" holds ${section[2]} values, where ${n} Gaussians need ${length}`;
+  }
+  let offset = 0;
+  for (const [name, type, length] of meta.sections) {
+    if (offset % SECTION_TYPES[type].BYTES_PER_ELEMENT) return `section "${name}" is not aligned`;
+    offset += length * SECTION_TYPES[type].BYTES_PER_ELEMENT;
+  }
+  return null;
+}
+
 function sceneBytes(meta) {
-  const n = meta.gaussians, k = meta.keyframes;
-  return 4 * (2 * n * CHANNELS + n + n * meta.sh_stored * 3) + 2 * k * n * CHANNELS;
+  return meta.sections.reduce((sum, [, type, length]) => sum + length * SECTION_TYPES[type].BYTES_PER_ELEMENT, 0);
 }
 
 async function fetched(name, read) {
@@ -388,10 +502,12 @@ async function loadScene() {
 function checked(meta, buffer, where) {
   if (meta.format !== FORMAT) throw new SceneError(`scene.json: format ${JSON.stringify(meta.format)}, where this player reads ${FORMAT}`);
   if (!meta.cameras || !meta.cameras.length) throw new SceneError("scene.json: no cameras");
+  const problem = sectionsProblem(meta);
+  if (problem) throw new SceneError(`scene.json: ${problem}; export the scene again`);
   const expected = sceneBytes(meta);
   if (buffer.byteLength !== expected) {
-    throw new SceneError(`${where} holds ${buffer.byteLength.toLocaleString("en")} bytes, where ${meta.gaussians.toLocaleString("en")} ` +
-      `Gaussians and ${meta.keyframes} keyframes need ${expected.toLocaleString("en")}: ` +
+    throw new SceneError(`${where} holds ${buffer.byteLength.toLocaleString("en")} bytes, where the ${meta.gaussians.toLocaleString("en")} ` +
+      `Gaussians of scene.json need ${expected.toLocaleString("en")}: ` +
       (buffer.byteLength < expected ? "it is truncated" : "it belongs to another export") + "; export the scene again");
   }
   return [meta, buffer];
@@ -502,6 +618,12 @@ async function start() {
       return player.frameTime();
     },
     orbit(dx, dy) { player.orbit(dx, dy); show(); },
+    // What the player decoded: every Gaussian's state at `time` (quaternions unnormalised), its
+    // opacity and SH coefficients.
+    gaussians(time) {
+      player.interpolate(time);
+      return { state: Array.from(player.state), opacities: Array.from(player.opacities), sh: Array.from(player.sh) };
+    },
     state() {
       const { width, height, fx, fy, cx, cy } = player.camera;
       return { camera: player.cameraIndex, time: player.time, width, height, fx, fy, cx, cy, view: Array.from(player.view) };
