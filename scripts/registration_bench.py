@@ -56,12 +56,18 @@ def register(src: Path, clip: Path, out: Path) -> dict:
     return record
 
 
-def against_truth(scene: Path, truth_file: Path) -> str:
-    """The scene's cameras (image folder runs: ids are positions in name order) against truth.txt's."""
+def truth_poses(truth_file: Path) -> np.ndarray:
+    """truth.txt's cameras as [N, 4, 4] camera-to-world poses in OpenCV's camera axes, the scenes'."""
     rows = np.loadtxt(truth_file).reshape(-1, 12)
     truth = np.tile(np.eye(4), (len(rows), 1, 1))
-    opengl_to_opencv = np.diag([1.0, -1.0, -1.0])  # y and z flipped: the scenes' cameras are OpenCV's
+    opengl_to_opencv = np.diag([1.0, -1.0, -1.0])  # y and z flipped
     truth[:, :3, 3], truth[:, :3, :3] = rows[:, :3], rows[:, 3:].reshape(-1, 3, 3) @ opengl_to_opencv
+    return truth
+
+
+def against_truth(scene: Path, truth_file: Path) -> str:
+    """The scene's cameras (image folder runs: ids are positions in name order) against truth.txt's."""
+    truth = truth_poses(truth_file)
     poses = scene_poses(scene)
     return score_poses(np.stack(list(poses.values())), truth[[int(i) for i in poses]]).describe()
 

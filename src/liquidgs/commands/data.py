@@ -105,6 +105,11 @@ class CaptureArgs:
     """Keep the frames as decoded and COLMAP's radial distortion k1 in the camera files (trained as if
     pinhole). By default the frames are undistorted into a pinhole camera by COLMAP's undistorter, the
     border cropped to valid pixels (and to sides divisible by 4), and the camera files carry no distortion."""
+    fast_features: bool = False
+    """Take COLMAP's SIFT features from the frames as they are, not from the frames doubled in size (its
+    default, which finds finer features): about a third of the CPU in features, matching and mapping, at
+    about twice the pose error against ground truth (measured on New Tsukuba, docs/results/registration.md).
+    For a quick first look; the default is the more accurate."""
     mask_moving: bool = False
     """Without --mask-dynamic: find what moves from optical flow between neighbouring frames (pixels the
     pair's dominant two-view geometry does not explain) and take no COLMAP features there. Off by default:
@@ -241,7 +246,13 @@ def _capture(args: CaptureArgs, source: Path, video: bool, fps: float | None = N
         max_size=args.max_size,
         holdout_every=args.holdout_every,
         mask_dir=args.mask_dynamic,
-        solve=SolveOptions(matcher=args.matcher, mapper=args.mapper, threads=args.threads, deadline=args.deadline),
+        solve=SolveOptions(
+            matcher=args.matcher,
+            mapper=args.mapper,
+            threads=args.threads,
+            deadline=args.deadline,
+            fast_features=args.fast_features,
+        ),
         keep_distortion=args.keep_distortion,
         flow=args.flow,
         mask_moving=args.mask_moving,
