@@ -273,6 +273,10 @@ if args[:2] == ["data", "video"]:  # COLMAP's part, played: one clip refused, th
         sys.exit(2)
     pathlib.Path(args[args.index("--out") + 1]).mkdir()
     print("done: 80/80 frames registered, mean reprojection error 0.30 px, 7755 points")
+if args[0] == "eval":  # the scores' files, so the script's resuming can be checked
+    run = pathlib.Path(args[args.index("--run") + 1])
+    (run / "eval.json").write_text(json.dumps({"masks": args[args.index("--mask") + 1]}))
+    (run / "eval_per_view.json").write_text("{}")
 if args[:2] == ["experiment", "run"]:  # one finished run of the cat, one unfinished
     runs = pathlib.Path(args[args.index("--out") + 1]) / "real-clips" / "cat"
     for field, done in (("mlp", True), ("cfc", False)):
@@ -307,14 +311,29 @@ def test_the_rebuild_script_downloads_registers_each_clip_and_runs_the_spec(serv
     specs = script.parents[1] / "docs" / "experiments"
     scenes, masks = str(bench / "scenes"), str(bench / "masks" / "cat")
     experiment, without = str(bench / "experiment"), str(bench / "experiment-without-regularisers")
-    assert calls[4:] == [
+    motion = ["motion", "motion-without-flow", "motion-without-split"]
+    assert calls[4:11] == [
         ["experiment", "run", str(specs / "real-clips.yml"), "--data-root", scenes, "--out", experiment],
         ["experiment", "run", str(specs / "real-clips-without-regularisers.yml"), "--data-root", scenes,
          "--out", without],
+        *(["experiment", "run", str(specs / f"real-clips-{spec}.yml"), "--data-root", scenes, "--out",
+           str(bench / f"experiment-{spec}")] for spec in motion),
         ["eval", "--run", f"{experiment}/real-clips/cat/mlp/0123abcd", "--mask", masks],
         ["eval", "--run", f"{without}/real-clips/cat/mlp/0123abcd", "--mask", masks],
-        ["experiment", "report", experiment], ["experiment", "report", without],
     ]  # fmt: skip
+    # The runs with the motion evidence: scored in the scene's own masks (kept aside), then in the boxes.
+    motion_runs = [bench / f"experiment-{spec}" / "real-clips" / "cat" / "mlp" / "0123abcd" for spec in motion]
+    scored = [["eval", "--run", str(r), "--mask", m, *(["--flow-error"] if m == "auto" else [])]
+              for r in motion_runs for m in ("auto", masks)]  # fmt: skip
+    assert sorted(calls[11:17]) == sorted(scored)
+    for motion_run in motion_runs:
+        assert calls.index(["eval", "--run", str(motion_run), "--mask", "auto", "--flow-error"]) < \
+            calls.index(["eval", "--run", str(motion_run), "--mask", masks])  # fmt: skip
+        assert json.loads((motion_run / "eval-auto.json").read_text()) == {"masks": "auto"}
+        assert json.loads((motion_run / "eval.json").read_text()) == {"masks": masks}
+        assert (motion_run / "eval-auto_per_view.json").is_file() and (motion_run / "eval_per_view.json").is_file()
+    reports = [experiment, without, *(str(bench / f"experiment-{spec}") for spec in motion)]
+    assert calls[17:] == [["experiment", "report", folder] for folder in reports]
     # The masks: every test view of every moving clip, its box 255 inside at the view's size.
     boxes = json.loads((script.parents[1] / "docs" / "experiments" / "real-clips-boxes.json").read_text())["clips"]
     assert sorted(p.name for p in (bench / "masks").iterdir()) == sorted(boxes) and "apple" not in boxes
@@ -328,9 +347,10 @@ def test_the_rebuild_script_downloads_registers_each_clip_and_runs_the_spec(serv
     assert sorted(p.name for p in (bench / "scenes").iterdir()) == ["apple", "cat"]
     again = subprocess.run(["bash", str(script), str(bench)], env=env, capture_output=True, text=True)
     assert again.returncode == 0, again.stderr
-    calls_again = [json.loads(line) for line in (tmp_path / "liquidgs_stub.py.calls").read_text().splitlines()][10:]
-    assert [call[:2] for call in calls_again] == [["data", "video"]] + [["experiment", "run"]] * 2 + \
-        [["eval", "--run"]] * 2 + [["experiment", "report"]] * 2  # fmt: skip
+    calls_again = [json.loads(line) for line in (tmp_path / "liquidgs_stub.py.calls").read_text().splitlines()][22:]
+    # The runs with the motion evidence, scored both ways, are not scored again.
+    assert [call[:2] for call in calls_again] == [["data", "video"]] + [["experiment", "run"]] * 5 + \
+        [["eval", "--run"]] * 2 + [["experiment", "report"]] * 5  # fmt: skip
     assert calls_again[0][2] == str(bench / "clips" / "refused.mp4")  # the refused clip is tried again
 
 
