@@ -393,12 +393,33 @@ def test_the_benchmark_spec_trains_every_field_on_clips_of_the_set_with_their_qu
         (clip,) = grid.scenes
         assert clip in CLIPS
         printed = quick_look_commands(Path("scenes") / clip, registered[clip])[1]
+        # No motion evidence, written out so the runs do not follow the defaults (real-clips-motion.yml: with it).
+        assert grid.overrides["flow.weight"] == 0 and grid.overrides["split.apply"] is False, clip
         for setting, value in grid.overrides.items():
-            assert f"--{setting.replace('_', '-')} {value:g}" in printed, (clip, setting, printed)
+            if setting not in ("flow.weight", "split.apply"):
+                assert f"--{setting.replace('_', '-')} {value:g}" in printed, (clip, setting, printed)
     assert {g.scenes[0] for g in spec.grids} == set(registered)
     # Two seeds of every clip: ten (clip, seed) pairs of moving clips for the verdict rule, the static
     # model's seed spread (the rule's floor) measured on each of them, and the still clip's bound twice.
     assert all(list(g.seeds) == [0, 1] for g in spec.grids)
+
+
+def test_the_benchmark_with_the_motion_evidence_differs_from_the_benchmark_only_in_it():
+    """docs/experiments/real-clips-motion.yml: real-clips.yml's runs (every field, both seeds) with the
+    flow loss and the split set on; its ablations the fields that deform with one piece off each."""
+    folder = Path(__file__).parents[1] / "docs" / "experiments"
+    spec = load_spec(str(folder / "real-clips.yml"))
+    base = {(g.scenes, f, tuple(g.seeds)): g.overrides for g in spec.grids for f in g.fields}
+    pieces = {"real-clips-motion": {"flow.weight": 0.02, "split.apply": True},
+              "real-clips-motion-without-flow": {"flow.weight": 0, "split.apply": True},
+              "real-clips-motion-without-split": {"flow.weight": 0.02, "split.apply": False}}  # fmt: skip
+    for name, evidence in pieces.items():
+        motion = load_spec(str(folder / f"{name}.yml"))
+        runs = {(g.scenes, f, tuple(g.seeds)): g.overrides for g in motion.grids for f in g.fields}
+        wanted = {key for key in base if name == "real-clips-motion" or key[1] != "static"}
+        assert runs.keys() == wanted and motion.name == name, name
+        for key, overrides in runs.items():
+            assert overrides == {**base[key], **evidence}, (name, key)
 
 
 def test_the_benchmark_without_regularisers_differs_from_the_benchmark_only_in_them():
