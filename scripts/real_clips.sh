@@ -10,10 +10,14 @@
 # 3. `liquidgs experiment run docs/experiments/real-clips.yml`: static, MLP, CfC and HexPlane with the
 #    quick look's settings on every clip, scored with the test cameras as given and aligned (into
 #    DIR/experiment); then real-clips-without-regularisers.yml, seed 0 of each field with every motion
-#    weight at 0 (into DIR/experiment-without-regularisers);
+#    weight at 0 (into DIR/experiment-without-regularisers); then with the motion evidence (the flow
+#    loss and the static/dynamic split: real-clips-motion.yml) and without each piece in turn
+#    (real-clips-motion-without-flow.yml, -without-split.yml), into DIR/experiment-<spec>;
 # 4. masks of the moving subject on each test view, from the boxes drawn by eye in
 #    docs/experiments/real-clips-boxes.json, and `liquidgs eval --mask` of every finished run of a clip
-#    that has them (scores inside and outside, test cameras as given and aligned);
+#    that has them (scores inside and outside, test cameras as given and aligned); the runs with the
+#    motion evidence once each, also inside the scene's own motion masks (`eval --mask auto`, with the
+#    rendered motion's end-point error: RUN/eval-auto.json), so a stopped rebuild does not score them again;
 # 5. how the scenes' own motion masks (data flow) agree with the boxes (DIR/mask-agreement.txt);
 # 6. the two reports. Steps already done (a folder that exists) are skipped, so a stopped rebuild resumes.
 # LIQUIDGS (default: liquidgs) is the command to run, e.g. "python -m liquidgs.cli"; PYTHON (default:
@@ -48,6 +52,9 @@ done
 "${liquidgs[@]}" experiment run "$specs/real-clips.yml" --data-root "$out/scenes" --out "$out/experiment"
 "${liquidgs[@]}" experiment run "$specs/real-clips-without-regularisers.yml" --data-root "$out/scenes" \
     --out "$out/experiment-without-regularisers"
+for spec in motion motion-without-flow motion-without-split; do
+    "${liquidgs[@]}" experiment run "$specs/real-clips-$spec.yml" --data-root "$out/scenes" --out "$out/experiment-$spec"
+done
 
 "${python[@]}" "$root/docs/experiments/real_clips_masks.py" "$out/masks"
 for masks in "$out"/masks/*/; do
@@ -59,6 +66,31 @@ for masks in "$out"/masks/*/; do
             || echo "$clip: eval --mask of ${run%/} failed: $(tail -n 1 "$log")" >&2
     done
 done
+# The runs with the motion evidence, once each: scored inside the scene's own motion masks, with the
+# rendered motion's end-point error (kept as eval-auto.json), then inside the boxes where the clip has
+# them (eval.json, which the report reads).
+for run in "$out"/experiment-motion*/*/*/*/*/; do
+    [ -f "$run/results.json" ] || continue
+    rel=${run#"$out"/}
+    rel=${rel%/}  # experiment-SPEC/DATASET/CLIP/FIELD/HASH
+    IFS=/ read -r _ _ clip _ <<< "$rel"
+    log="$out/logs/eval-${rel//\//-}"
+    if [ ! -f "$run/eval-auto.json" ]; then
+        if "${liquidgs[@]}" eval --run "${run%/}" --mask auto --flow-error > "$log-auto.log" 2>&1; then
+            mv "$run/eval_per_view.json" "$run/eval-auto_per_view.json"
+            mv "$run/eval.json" "$run/eval-auto.json"
+        else
+            echo "$clip: eval --mask auto of ${run%/} failed: $(tail -n 1 "$log-auto.log")" >&2
+        fi
+    fi
+    if [ -d "$out/masks/$clip" ] && [ ! -f "$run/eval.json" ]; then
+        "${liquidgs[@]}" eval --run "${run%/}" --mask "$out/masks/$clip" > "$log.log" 2>&1 \
+            || echo "$clip: eval --mask of ${run%/} failed: $(tail -n 1 "$log.log")" >&2
+    fi
+done
 "${python[@]}" "$root/docs/experiments/real_clips_mask_agreement.py" "$out/scenes" | tee "$out/mask-agreement.txt"
 "${liquidgs[@]}" experiment report "$out/experiment"
 "${liquidgs[@]}" experiment report "$out/experiment-without-regularisers"
+for spec in motion motion-without-flow motion-without-split; do
+    "${liquidgs[@]}" experiment report "$out/experiment-$spec"
+done

@@ -273,6 +273,10 @@ if args[:2] == ["data", "video"]:  # COLMAP's part, played: one clip refused, th
         sys.exit(2)
     pathlib.Path(args[args.index("--out") + 1]).mkdir()
     print("done: 80/80 frames registered, mean reprojection error 0.30 px, 7755 points")
+if args[0] == "eval":  # the scores' files, so the script's resuming can be checked
+    run = pathlib.Path(args[args.index("--run") + 1])
+    (run / "eval.json").write_text(json.dumps({"masks": args[args.index("--mask") + 1]}))
+    (run / "eval_per_view.json").write_text("{}")
 if args[:2] == ["experiment", "run"]:  # one finished run of the cat, one unfinished
     runs = pathlib.Path(args[args.index("--out") + 1]) / "real-clips" / "cat"
     for field, done in (("mlp", True), ("cfc", False)):
@@ -307,14 +311,29 @@ def test_the_rebuild_script_downloads_registers_each_clip_and_runs_the_spec(serv
     specs = script.parents[1] / "docs" / "experiments"
     scenes, masks = str(bench / "scenes"), str(bench / "masks" / "cat")
     experiment, without = str(bench / "experiment"), str(bench / "experiment-without-regularisers")
-    assert calls[4:] == [
+    motion = ["motion", "motion-without-flow", "motion-without-split"]
+    assert calls[4:11] == [
         ["experiment", "run", str(specs / "real-clips.yml"), "--data-root", scenes, "--out", experiment],
         ["experiment", "run", str(specs / "real-clips-without-regularisers.yml"), "--data-root", scenes,
          "--out", without],
+        *(["experiment", "run", str(specs / f"real-clips-{spec}.yml"), "--data-root", scenes, "--out",
+           str(bench / f"experiment-{spec}")] for spec in motion),
         ["eval", "--run", f"{experiment}/real-clips/cat/mlp/0123abcd", "--mask", masks],
         ["eval", "--run", f"{without}/real-clips/cat/mlp/0123abcd", "--mask", masks],
-        ["experiment", "report", experiment], ["experiment", "report", without],
     ]  # fmt: skip
+    # The runs with the motion evidence: scored in the scene's own masks (kept aside), then in the boxes.
+    motion_runs = [bench / f"experiment-{spec}" / "real-clips" / "cat" / "mlp" / "0123abcd" for spec in motion]
+    scored = [["eval", "--run", str(r), "--mask", m, *(["--flow-error"] if m == "auto" else [])]
+              for r in motion_runs for m in ("auto", masks)]  # fmt: skip
+    assert sorted(calls[11:17]) == sorted(scored)
+    for motion_run in motion_runs:
+        assert calls.index(["eval", "--run", str(motion_run), "--mask", "auto", "--flow-error"]) < \
+            calls.index(["eval", "--run", str(motion_run), "--mask", masks])  # fmt: skip
+        assert json.loads((motion_run / "eval-auto.json").read_text()) == {"masks": "auto"}
+        assert json.loads((motion_run / "eval.json").read_text()) == {"masks": masks}
+        assert (motion_run / "eval-auto_per_view.json").is_file() and (motion_run / "eval_per_view.json").is_file()
+    reports = [experiment, without, *(str(bench / f"experiment-{spec}") for spec in motion)]
+    assert calls[17:] == [["experiment", "report", folder] for folder in reports]
     # The masks: every test view of every moving clip, its box 255 inside at the view's size.
     boxes = json.loads((script.parents[1] / "docs" / "experiments" / "real-clips-boxes.json").read_text())["clips"]
     assert sorted(p.name for p in (bench / "masks").iterdir()) == sorted(boxes) and "apple" not in boxes
@@ -328,9 +347,10 @@ def test_the_rebuild_script_downloads_registers_each_clip_and_runs_the_spec(serv
     assert sorted(p.name for p in (bench / "scenes").iterdir()) == ["apple", "cat"]
     again = subprocess.run(["bash", str(script), str(bench)], env=env, capture_output=True, text=True)
     assert again.returncode == 0, again.stderr
-    calls_again = [json.loads(line) for line in (tmp_path / "liquidgs_stub.py.calls").read_text().splitlines()][10:]
-    assert [call[:2] for call in calls_again] == [["data", "video"]] + [["experiment", "run"]] * 2 + \
-        [["eval", "--run"]] * 2 + [["experiment", "report"]] * 2  # fmt: skip
+    calls_again = [json.loads(line) for line in (tmp_path / "liquidgs_stub.py.calls").read_text().splitlines()][22:]
+    # The runs with the motion evidence, scored both ways, are not scored again.
+    assert [call[:2] for call in calls_again] == [["data", "video"]] + [["experiment", "run"]] * 5 + \
+        [["eval", "--run"]] * 2 + [["experiment", "report"]] * 5  # fmt: skip
     assert calls_again[0][2] == str(bench / "clips" / "refused.mp4")  # the refused clip is tried again
 
 
@@ -373,12 +393,33 @@ def test_the_benchmark_spec_trains_every_field_on_clips_of_the_set_with_their_qu
         (clip,) = grid.scenes
         assert clip in CLIPS
         printed = quick_look_commands(Path("scenes") / clip, registered[clip])[1]
+        # No motion evidence, written out so the runs do not follow the defaults (real-clips-motion.yml: with it).
+        assert grid.overrides["flow.weight"] == 0 and grid.overrides["split.apply"] is False, clip
         for setting, value in grid.overrides.items():
-            assert f"--{setting.replace('_', '-')} {value:g}" in printed, (clip, setting, printed)
+            if setting not in ("flow.weight", "split.apply"):
+                assert f"--{setting.replace('_', '-')} {value:g}" in printed, (clip, setting, printed)
     assert {g.scenes[0] for g in spec.grids} == set(registered)
     # Two seeds of every clip: ten (clip, seed) pairs of moving clips for the verdict rule, the static
     # model's seed spread (the rule's floor) measured on each of them, and the still clip's bound twice.
     assert all(list(g.seeds) == [0, 1] for g in spec.grids)
+
+
+def test_the_benchmark_with_the_motion_evidence_differs_from_the_benchmark_only_in_it():
+    """docs/experiments/real-clips-motion.yml: real-clips.yml's runs (every field, both seeds) with the
+    flow loss and the split set on; its ablations the fields that deform with one piece off each."""
+    folder = Path(__file__).parents[1] / "docs" / "experiments"
+    spec = load_spec(str(folder / "real-clips.yml"))
+    base = {(g.scenes, f, tuple(g.seeds)): g.overrides for g in spec.grids for f in g.fields}
+    pieces = {"real-clips-motion": {"flow.weight": 0.02, "split.apply": True},
+              "real-clips-motion-without-flow": {"flow.weight": 0, "split.apply": True},
+              "real-clips-motion-without-split": {"flow.weight": 0.02, "split.apply": False}}  # fmt: skip
+    for name, evidence in pieces.items():
+        motion = load_spec(str(folder / f"{name}.yml"))
+        runs = {(g.scenes, f, tuple(g.seeds)): g.overrides for g in motion.grids for f in g.fields}
+        wanted = {key for key in base if name == "real-clips-motion" or key[1] != "static"}
+        assert runs.keys() == wanted and motion.name == name, name
+        for key, overrides in runs.items():
+            assert overrides == {**base[key], **evidence}, (name, key)
 
 
 def test_the_benchmark_without_regularisers_differs_from_the_benchmark_only_in_them():
