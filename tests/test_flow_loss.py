@@ -102,3 +102,31 @@ def test_the_loss_is_zero_for_the_true_flow_and_the_l1_of_the_error_otherwise():
     target.valid = torch.zeros_like(target.valid)
     assert loss.loss(out, drawn) is None  # nothing to compare
     assert loss.target(7, np.random.default_rng(0)) is None  # a frame without flow
+
+
+def test_a_gaussian_behind_or_beside_the_neighbours_camera_neither_counts_nor_learns():
+    """On a real clip (lady-running) Gaussians in front of one camera but at or behind the next one's
+    image plane composited thousands of pixels of motion into the flow and wrecked the training: such
+    a Gaussian's pixels are left out, and its neighbour's flow is its own."""
+    now = two_gaussians()
+    shift = torch.tensor([[0.0, 0.0, -3.995], [0.0, 0.0, 0.0]], dtype=torch.float64)  # the first at depth 0.005
+    later = two_gaussians(shift)
+    later.means.requires_grad_(True)
+    flow, covered = rendered_flow(now, camera(), later, camera(0.1), backend="torch")
+    first, second = (project(now.means, camera())[i].long().tolist() for i in (0, 1))
+    assert covered[first[1], first[0]] < 1e-6 and covered[second[1], second[0]] > 0.9
+    assert flow[second[1], second[0]].tolist() == pytest.approx([-0.1 * FOCAL / 4, 0.0])
+    valid = np.ones((HEIGHT, WIDTH), bool)
+    measured = np.zeros((HEIGHT, WIDTH, 2), np.float32)
+    loss = FlowLoss(1.0, [FlowPair("a", "b", measured, measured, valid, valid)], ["a", "b"], torch.device("cpu"))
+    drawn = loss.draw(now, camera(), later, camera(0.1), loss.target(0, np.random.default_rng(0)))
+    out = render_frame(now, camera(), sh_degree=0, background=torch.zeros(3, dtype=torch.float64), backend="torch",
+                       features=drawn.motion)  # fmt: skip
+    value = loss.loss(out, drawn)
+    value.backward()
+    assert float(value.detach()) < 1.0  # the second Gaussian's 1 px over the pixels it covers, nothing of the first
+    assert later.means.grad[0].abs().max() == 0 and later.means.grad[1].abs().max() > 0
+    # A Gaussian still in front of both cameras but moving further than the image is wide counts neither.
+    far = two_gaussians(torch.tensor([[60.0, 0.0, 0.0], [0.0, 0.0, 0.0]], dtype=torch.float64))
+    _, covered = rendered_flow(now, camera(), far, camera(0.1), backend="torch")
+    assert covered[first[1], first[0]] < 1e-6 and covered[second[1], second[0]] > 0.9

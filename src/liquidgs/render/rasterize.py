@@ -107,6 +107,10 @@ def choose_backend(backend: str, means: Tensor) -> str:
     return chosen
 
 
+NEAR_PLANE = 0.01
+"""Gaussians nearer the camera than this (in scene units) are not drawn (gsplat's default)."""
+
+
 def rasterize(
     means: Tensor,
     quats: Tensor,
@@ -122,7 +126,7 @@ def rasterize(
     sh_degree: int | None = None,
     background: Tensor | None = None,
     backend: str = "auto",
-    near_plane: float = 0.01,
+    near_plane: float = NEAR_PLANE,
     far_plane: float = 1e10,
     eps2d: float = 0.3,
     absgrad: bool = False,

@@ -6,8 +6,10 @@ screen is where the neighbour's camera sees it at t' minus where this frame's ca
 (each Gaussian deformed by the field at its own time, each camera with its refinement). Those 2D
 motions are composited per pixel with the same weights as colour - as extra feature channels of the
 colour pass itself (rasterize's `features`, on every backend), so they cost no raster pass of their
-own - divided by the pixel's alpha, and compared with the measured flow (L1, in pixels) where the
-flow is consistent both ways and the render is opaque (alpha at least MIN_ALPHA). Its gradient
+own - and compared with the measured flow (L1, in pixels) where the flow is consistent both ways and
+the render is opaque with Gaussians whose motion is measurable (see screen_motion: one in front of
+only one of the two cameras, or moving further than the image is wide, would pull a pixel's flow by
+thousands of pixels - it did on a real clip - so it neither counts nor learns). Its gradient
 reaches the Gaussians through that pass, so densification's screen-space gradients carry it too.
 By default (flow.weight unset) on at DEFAULT_WEIGHT for a capture with flow at the scale the run
 reads (`liquidgs data flow SCENE --downscale K` makes it), off elsewhere (train.config's
@@ -25,7 +27,7 @@ import torch
 from liquidgs.cameras import Camera
 from liquidgs.data.flow import FlowPair
 from liquidgs.errors import check_number
-from liquidgs.render import RenderOutput
+from liquidgs.render import NEAR_PLANE, RenderOutput
 from liquidgs.train.model import Deformed, render_frame
 
 DEFAULT_WEIGHT = 0.02
@@ -34,7 +36,8 @@ quick look, seed 0, aligned, inside the boxes around the cat): with the static/d
 +5.78 dB over the static model with the loss at 0.02 against +5.25 without it; without the split,
 +3.38 dB over the MLP without the loss (docs/results/video-pipeline.md)."""
 MIN_ALPHA = 0.5
-"""Pixels the render covers less than this are left out: their composited motion is mostly empty space."""
+"""Pixels the measurable Gaussians cover less than this are left out: their composited motion is
+mostly empty space, or Gaussians whose motion cannot be measured."""
 
 
 @dataclass
@@ -98,29 +101,37 @@ class FlowLoss:
         """weight x the mean L1 between the composited motion in `out` (the colour pass rendered with
         `drawn.motion` as its features) and the measured flow, over the pixels where both count;
         None where there are none."""
-        rendered, alpha = composited_flow(out)
-        use = drawn.target.valid & (alpha.detach() >= MIN_ALPHA)
+        rendered, covered = composited_flow(out)
+        use = drawn.target.valid & (covered.detach() >= MIN_ALPHA)
         if not bool(use.any()):
             return None
         return self.weight * (rendered[use] - drawn.target.flow[use]).abs().mean()
 
 
 def screen_motion(now: Deformed, camera: Camera, later: Deformed, later_camera: Camera) -> torch.Tensor:
-    """Each Gaussian's motion on screen [N, 2], in pixels: its projection by `later_camera` at `later`
-    minus its projection by `camera` at `now`."""
-    return project(later.means, later_camera) - project(now.means, camera)
+    """Each Gaussian's motion on screen in pixels, its projection by `later_camera` at `later` minus its
+    projection by `camera` at `now`, and a third channel, 1 where that motion is measurable: the
+    Gaussian at least the rasteriser's NEAR_PLANE in front of both cameras and its motion no longer
+    than the image's longer side (the flow cannot hold a longer one). Elsewhere both are 0: [N, 3]."""
+    start, start_depth = project_with_depth(now.means, camera)
+    end, end_depth = project_with_depth(later.means, later_camera)
+    motion = end - start
+    longest = max(camera.width, camera.height)
+    measurable = (start_depth >= NEAR_PLANE) & (end_depth >= NEAR_PLANE) & (motion.detach().norm(dim=-1) <= longest)
+    motion = torch.where(measurable[:, None], motion, motion.new_zeros(()))
+    return torch.cat([motion, measurable[:, None].to(motion.dtype)], dim=1)
 
 
 def composited_flow(out: RenderOutput):
-    """The motion a render with `screen_motion` as its features composited, divided by alpha:
-    ([H, W, 2] pixels, alpha [H, W])."""
-    alpha = out.alpha[..., 0]
-    return out.features / alpha.clamp_min(MIN_ALPHA)[..., None], alpha
+    """The motion a render with `screen_motion` as its features composited over the measurable
+    Gaussians, and their weight: ([H, W, 2] pixels, [H, W])."""
+    measurable = out.features[..., 2]
+    return out.features[..., :2] / measurable.clamp_min(MIN_ALPHA)[..., None], measurable
 
 
 def rendered_flow(now: Deformed, camera: Camera, later: Deformed, later_camera: Camera, backend: str = "auto"):
     """The colour pass with the screen motion as its features, as the trainer renders it (SH degree 0:
-    the flow, not the picture, is wanted): (flow [H, W, 2], alpha [H, W])."""
+    the flow, not the picture, is wanted): (flow [H, W, 2], the measurable Gaussians' weight [H, W])."""
     motion = screen_motion(now, camera, later, later_camera)
     background = now.means.new_zeros(3)
     return composited_flow(render_frame(now, camera, sh_degree=0, background=background, backend=backend,
@@ -130,11 +141,16 @@ def rendered_flow(now: Deformed, camera: Camera, later: Deformed, later_camera: 
 def project(means: torch.Tensor, camera: Camera) -> torch.Tensor:
     """Pixel positions [N, 2] of world points [N, 3] through a pinhole camera (points behind it
     project through a depth clamped at 1e-6)."""
+    return project_with_depth(means, camera)[0]
+
+
+def project_with_depth(means: torch.Tensor, camera: Camera) -> tuple[torch.Tensor, torch.Tensor]:
+    """`project`'s pixel positions [N, 2] and each point's depth in front of the camera [N]."""
     viewmat = camera.viewmat.to(means)
     K = camera.K.to(means)
     in_camera = means @ viewmat[:3, :3].T + viewmat[:3, 3]
-    depth = in_camera[:, 2:3].clamp_min(1e-6)
-    return (in_camera[:, :2] / depth) @ K[:2, :2].T + K[:2, 2]
+    depth = in_camera[:, 2]
+    return (in_camera[:, :2] / depth.clamp_min(1e-6)[:, None]) @ K[:2, :2].T + K[:2, 2], depth
 
 
 def _tensor(array: np.ndarray, device: torch.device) -> torch.Tensor:
@@ -145,8 +161,8 @@ def _tensor(array: np.ndarray, device: torch.device) -> torch.Tensor:
 def flow_error(at_time, frames: list, pairs: list[FlowPair], masks: np.ndarray, backend: str = "auto") -> dict:
     """The end-point error (pixels) of the Gaussians' rendered motion (`at_time(t)`: the Gaussians at
     t) against the measured flow of every pair of train frames, both ways, with the cameras as given:
-    over the pixels where the flow is consistent and the render opaque, and over those of them inside
-    the first frame's motion mask (`masks` [F, H, W] in `frames` order)."""
+    over the pixels where the flow is consistent and the measurable Gaussians cover them, and over
+    those of them inside the first frame's motion mask (`masks` [F, H, W] in `frames` order)."""
     index = {frame.name: i for i, frame in enumerate(frames)}
     gaussians: dict[str, Deformed] = {}
 
@@ -165,9 +181,9 @@ def flow_error(at_time, frames: list, pairs: list[FlowPair], masks: np.ndarray, 
                       (pair.second, pair.first, pair.backward, pair.backward_consistent))  # fmt: skip
         for a, b, measured, consistent in directions:
             frame_a, frame_b = frames[index[a]], frames[index[b]]
-            rendered, alpha = rendered_flow(at(a), frame_a.camera, at(b), frame_b.camera, backend)
+            rendered, covered = rendered_flow(at(a), frame_a.camera, at(b), frame_b.camera, backend)
             error = (rendered.cpu() - torch.from_numpy(measured)).norm(dim=-1)
-            use = torch.from_numpy(consistent) & (alpha.cpu() >= MIN_ALPHA)
+            use = torch.from_numpy(consistent) & (covered.cpu() >= MIN_ALPHA)
             inside = use & torch.from_numpy(masks[index[a]])
             for key, region in (("consistent", use), ("inside_masks", inside)):
                 sums[key][0] += float(error[region].sum())
