@@ -418,7 +418,7 @@ def test_splatv_budget_flags_reach_the_fit(baked, tmp_path):
     from liquidgs.bake.pieces import fit_splatv
 
     records = {}
-    for name, flags in (("default", []), ("tight", ["--splatv-tolerance", "0.05", "--splatv-pieces", "17"])):
+    for name, flags in (("default", []), ("tight", ["--splatv-tolerance", "0.25", "--splatv-pieces", "12"])):
         out = tmp_path / name
         code, _, err = run_cli(["export", "--run", str(baked), "--out", str(out), "--format", "splatv", *flags])
         assert code == 0, err
@@ -426,7 +426,7 @@ def test_splatv_budget_flags_reach_the_fit(baked, tmp_path):
     run = load_run(baked, "cpu")
     dataset = run.scene()
     cameras = [f.camera for f in (*dataset.test, *dataset.train)]
-    assert records["tight"] == fit_splatv(run, cameras, 0.05, 17).report["records"] > records["default"]
+    assert records["tight"] == fit_splatv(run, cameras, 0.25, 12).report["records"] > records["default"]
 
 
 def test_splatv_fit_keeps_motion_its_model_can_hold():
