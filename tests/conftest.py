@@ -62,6 +62,15 @@ def tiny_mlp_run(puppet_scene, tmp_path_factory) -> Path:
 
 
 @pytest.fixture(scope="session")
+def coloured_baked_run(tiny_mlp_run, tmp_path_factory) -> Path:
+    """tiny_mlp_run baked and coloured (tiny_runs.coloured_bake), once, for the tests of the file
+    formats and players that read it; a test that changes it changes a copy."""
+    from tiny_runs import coloured_bake
+
+    return coloured_bake(tiny_mlp_run, tmp_path_factory.mktemp("coloured") / "baked")
+
+
+@pytest.fixture(scope="session")
 def flow_capture(tmp_path_factory) -> Path:
     """The puppet as a capture (48 px, 16 frames, seed 2) with its optical flow and motion masks at
     1x, made once for every test that only reads it; a test that changes it changes a copy."""

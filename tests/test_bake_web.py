@@ -30,7 +30,7 @@ from liquidgs.media import to_uint8
 from liquidgs.train.dataset import load_run_dataset
 from liquidgs.train.run import load_run
 from shared_data import require_installed
-from tiny_runs import coloured_bake, one_line_error, rehash_baked_scene, run_cli
+from tiny_runs import one_line_error, rehash_baked_scene, run_cli
 
 REPO = Path(__file__).resolve().parents[1]
 ARTIFACTS = Path(os.environ.get("LIQUIDGS_TEST_ARTIFACTS", REPO / "test-artifacts")) / "web"
@@ -44,14 +44,12 @@ Measured 43-46 dB here (SwiftShader) and 54-55 dB on the demo scene; 35 dB leave
 WebGL implementations, while a wrong convention costs far more (front-to-back sort order: 24-25 dB)."""
 
 
-@pytest.fixture(autouse=True)
-def _one_thread(one_torch_thread):
-    yield
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 @pytest.fixture(scope="module")
-def baked(tiny_mlp_run, tmp_path_factory) -> Path:
-    return coloured_bake(tiny_mlp_run, tmp_path_factory.mktemp("web") / "baked")
+def baked(coloured_baked_run) -> Path:
+    return coloured_baked_run
 
 
 @pytest.fixture(scope="module")

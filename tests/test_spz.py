@@ -26,7 +26,7 @@ from liquidgs.bake.spz import fractional_bits, write_spz
 from liquidgs.errors import ConfigError
 from liquidgs.train.run import load_run
 from shared_data import require_installed
-from tiny_runs import coloured_bake, one_line_error, run_cli
+from tiny_runs import one_line_error, run_cli
 
 REPO = Path(__file__).resolve().parents[1]
 ARTIFACTS = Path(os.environ.get("LIQUIDGS_TEST_ARTIFACTS", REPO / "test-artifacts")) / "spz"
@@ -37,14 +37,12 @@ READER_SH_C0 = 0.282
 """@spz-loader/core returns colours as 0.5 + 0.282 x the SH DC coefficient (its colorScaleFactor)."""
 
 
-@pytest.fixture(autouse=True)
-def _one_thread(one_torch_thread):
-    yield
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 @pytest.fixture(scope="module")
-def baked(tiny_mlp_run, tmp_path_factory) -> Path:
-    return coloured_bake(tiny_mlp_run, tmp_path_factory.mktemp("spz") / "baked")
+def baked(coloured_baked_run) -> Path:
+    return coloured_baked_run
 
 
 @pytest.fixture(scope="module")
