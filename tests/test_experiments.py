@@ -323,6 +323,10 @@ def test_run_skip_done_and_keep_going_after_a_failure(data_root, tmp_path):
     code, _, err = run_cli(argv)
     assert code == 1
     assert "done 2, skipped 0 (finished before), failed 2" in err
+    # Into a log, a plain line per finished run names it and its outcome.
+    outcomes = re.findall(r"^\S+: (\d)/4 runs  (done|failed): (\S+)  elapsed \d+:\d\d:\d\d  ETA ", err, re.M)
+    assert [count for count, *_ in outcomes] == ["1", "2", "3", "4"], err
+    assert sorted(status for _, status, _ in outcomes) == ["done", "done", "failed", "failed"]
     assert "tiny-spinner-mlp-s0" in err and "transforms_train.json" in err
     experiment = read_manifest(tmp_path / "e")
     done = {r.scene for r in experiment.runs if r.is_done(experiment.directory)}

@@ -41,13 +41,16 @@ class PlainProgress:
 
     def __exit__(self, *exc) -> None:
         for task in self._tasks:
-            if task["printed_at"] != task["completed"]:  # the last state, if not printed yet
+            if task["_printed_at"] != task["completed"]:  # the last state, if not printed yet
                 self._print(task)
 
     def add_task(self, description: str, total: int, completed: int = 0, **fields) -> int:
         now = time.monotonic()
-        self._tasks.append({"description": description, "total": total, "completed": completed, "started": now,
-                            "start_completed": completed, "last": now, "printed_at": None, **fields})  # fmt: skip
+        # The printer's own state sits under keys starting with "_", apart from the caller's fields
+        # (the experiment's field is called "last").
+        self._tasks.append({**fields, "description": description, "total": total, "completed": completed,
+                            "_started": now, "_start_completed": completed, "_printed_time": now,
+                            "_printed_at": None})  # fmt: skip
         self._print(self._tasks[-1])
         return len(self._tasks) - 1
 
@@ -56,14 +59,14 @@ class PlainProgress:
         task["completed"] = (task["completed"] if completed is None else completed) + advance
         task.update(fields)
         now = time.monotonic()
-        if self._every_update or now - task["last"] >= PLAIN_INTERVAL_S or task["completed"] >= task["total"]:
+        if self._every_update or now - task["_printed_time"] >= PLAIN_INTERVAL_S or task["completed"] >= task["total"]:
             self._print(task)
 
     def _print(self, task: dict) -> None:
         now = time.monotonic()
-        task["last"], task["printed_at"] = now, task["completed"]
-        elapsed = now - task["started"]
-        done = task["completed"] - task["start_completed"]
+        task["_printed_time"], task["_printed_at"] = now, task["completed"]
+        elapsed = now - task["_started"]
+        done = task["completed"] - task["_start_completed"]
         left = task["total"] - task["completed"]
         eta = clock(elapsed / done * left) if done > 0 else "-"
         self.console.print(
