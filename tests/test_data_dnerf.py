@@ -11,6 +11,7 @@ import torch
 from PIL import Image
 
 from liquidgs.data import DataConfig, load_dataset
+from liquidgs.data.images import composite_and_downscale
 from shared_data import DNERF_ROOT, require_shared
 
 COUNTS = {
@@ -67,6 +68,24 @@ def test_downscaled_image_is_area_average_of_the_composited_image(background):
     assert image.dtype == torch.float32 and image.shape == (200, 200, 3)
     np.testing.assert_allclose(image.numpy(), expected, atol=0.51 / 255)
     assert ds.background == (bg, bg, bg)
+
+
+@pytest.mark.parametrize("factor", [1, 2, 3, 8])
+def test_composite_and_downscale_rounds_the_exact_block_mean(factor):
+    """The fast integer path against int64 arithmetic on random pixels, odd sizes and a grey
+    background: the nearest 8-bit value to the block mean of the composite, exactly."""
+    rng = np.random.default_rng(factor)
+    rgba = rng.integers(0, 256, size=(8 * factor + factor - 1, 5 * factor + 1, 4), dtype=np.uint8)
+    rgba[0, 0, 3], rgba[0, 1, 3] = 0, 255  # the extremes of coverage
+    background = (0.5, 1.0, 0.0)
+    wide = rgba.astype(np.int64)
+    background_8bit = np.rint(np.asarray(background) * 255).astype(np.int64)
+    composite = wide[..., :3] * wide[..., 3:] + background_8bit * (255 - wide[..., 3:])
+    height, width = rgba.shape[0] // factor, rgba.shape[1] // factor
+    blocks = composite[: height * factor, : width * factor].reshape(height, factor, width, factor, 3).sum(axis=(1, 3))
+    divisor = 255 * factor * factor
+    expected = (blocks + divisor // 2) // divisor
+    np.testing.assert_array_equal(composite_and_downscale(rgba, background, factor), expected.astype(np.uint8))
 
 
 def test_image_cache_is_bounded_lru():
