@@ -18,9 +18,10 @@ LPIPS_REF := .venv-lpips-ref
 LPIPS_RECORD := tests/data/lpips_pypi_reference.json
 LPIPS_REFERENCE ?= check
 # pytest-xdist workers, one per core by default; whole files go to one worker (--dist loadfile), so a
-# module's shared fixture (test_quality's eight trainings, say) is built once. TEST_WORKERS=0: serial.
+# module's shared fixture (test_quality's eight trainings, say) is built once; in collection order
+# (--no-loadscope-reorder), which tests/conftest.py starts with the longest files. TEST_WORKERS=0: serial.
 TEST_WORKERS ?= auto
-PYTEST := $(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile
+PYTEST := $(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder
 
 .PHONY: demo test test-fast docs lint setup lpips-reference reference
 

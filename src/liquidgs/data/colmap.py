@@ -421,9 +421,11 @@ def _map(pycolmap, database_path: Path, frames_dir: Path, sparse_dir: Path, atte
         registered = [0]
 
         def next_image() -> None:
+            # Called for every frame registered in any model: a frame registered again in a new
+            # model counts again, so this counts steps, not frames (a pan of 16 frames took 110).
             registered[0] += 1
             if registered[0] % 10 == 0:
-                log(f"mapping: {registered[0] + 2} frames registered ...")
+                log(f"mapping: {registered[0]} registration steps ...")
 
         models = pycolmap.incremental_mapping(
             database_path, frames_dir, sparse_dir, options=mapping, next_image_callback=next_image

@@ -41,7 +41,7 @@ def lens_warnings(model_name: str, params: list[float], width: int, height: int)
     if abs(k1) > MAX_ABS_K1:
         warnings.append(
             f"radial distortion k1 {k1:+.3f} is beyond a phone's (|k1| at most {MAX_ABS_K1}); focal length and "
-            "distortion trade off on this clip: move the camera sideways more, or try --mapper incremental"
+            "distortion trade off on this clip: move the camera sideways more, or film longer"
         )
     return warnings
 
