@@ -46,6 +46,22 @@ def test_a_camera_turning_in_place_is_named_as_the_cause_after_every_attempt(tmp
     assert "succeeded" not in out
 
 
+@pytest.mark.slow  # COLMAP on 10 frames, about 4 s of CPU
+def test_a_short_pan_whose_depth_comes_from_a_made_up_lens_is_refused(tmp_path, capsys):
+    """On 10 frames of the same pan, exhaustive matching gives COLMAP a model of 6 frames and 501 points - with
+    a radial distortion of k1 +1.08 that no phone has. Re-run with the distortion held at 0 it triangulates
+    5 points: the depth came from the lens, and the clip is refused as the camera turning in place."""
+    K = np.array([[FOCAL, 0.0, WIDTH / 2], [0.0, FOCAL, HEIGHT / 2], [0.0, 0.0, 1.0]])
+    prims = [moving_ball(0.3), *BACKGROUND]
+    poses = sweeping_camera(10, baseline=0.0, pan_degrees=30.0)
+    clip = tmp_path / "pan.mp4"
+    write_video(clip, [render_rgba(prims, K, pose, WIDTH, HEIGHT, 1)[..., :3] for pose in poses], fps=FPS)
+    args = ["data", "video", str(clip), "--frames", "10", "--mapper", "incremental"]
+    err = one_line_failure(capsys, args, tmp_path / "scene")
+    assert "the camera seems to turn in place" in err and "COLMAP made up depth the frames do not show" in err
+    assert "k1 +1.0" in err or "k1 +1.1" in err, err
+
+
 @pytest.mark.parametrize("frames", ["2", "3"])
 def test_too_few_frames_are_refused_before_colmap(frames, tmp_path, capsys):
     clip = tmp_path / "clip.mp4"

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -43,3 +45,70 @@ def test_frames_that_see_few_points_are_named():
     assert points_warnings(names, [500, 30, 400, 300]) == []
     (warning,) = points_warnings(names, [500, 29, 400, 3])
     assert warning.startswith("2 frame(s) see fewer than 30 triangulated points") and ": b, d;" in warning
+
+
+class _Camera:
+    model_name, width, height = "SIMPLE_RADIAL", 368, 480
+
+    def __init__(self, k1: float):
+        self.params = [505.0, 184.0, 240.0, k1]
+
+
+class _Model:
+    """What colmap._with_lens_held reads of a pycolmap Reconstruction, with its warnings."""
+
+    def __init__(self, k1: float, warnings: list[str]):
+        self.cameras, self.warnings = {1: _Camera(k1)}, warnings
+
+
+def _lens_held(monkeypatch, suspect: _Model, held: _Model | Exception):
+    """colmap._with_lens_held with the re-run's mapping and checks replaced: (the Solved, the re-run's attempts)."""
+    from liquidgs.data import colmap
+    from liquidgs.data.stage_times import StageTimes
+
+    reruns = []
+
+    def fake_map(pycolmap, database, frames, sparse, attempt, total, options, log):
+        reruns.append(attempt)
+        return held, False
+
+    def fake_check(model, total, share):
+        if isinstance(model, Exception):
+            raise model
+
+    monkeypatch.setattr(colmap, "_map", fake_map)
+    monkeypatch.setattr(colmap, "check_model", fake_check)
+    monkeypatch.setattr(colmap, "model_warnings", lambda model: model.warnings)
+    attempt = colmap.Attempt("incremental mapper", "sequential", "the first")
+    chosen = (suspect, attempt, suspect.warnings)
+    solved = colmap._with_lens_held(None, None, None, Path("/nonexistent"), chosen, 80, colmap.SolveOptions(),
+                                    lambda line: None, [], StageTimes())  # fmt: skip
+    return solved, reruns
+
+
+def test_a_lens_like_a_phones_is_not_run_again(monkeypatch):
+    suspect = _Model(-0.05, ["a jump in the camera path"])
+    solved, reruns = _lens_held(monkeypatch, suspect, _Model(0.0, []))
+    assert reruns == [] and solved.model is suspect and solved.warnings == ["a jump in the camera path"]
+
+
+def test_a_suspect_lens_is_run_again_held_and_the_better_model_is_used(monkeypatch):
+    suspect = _Model(0.7, ["radial distortion k1 +0.700 is beyond a phone's"])
+    better = _Model(0.0, [])
+    solved, reruns = _lens_held(monkeypatch, suspect, better)
+    assert [attempt.hold_distortion for attempt in reruns] == [True]
+    assert solved.model is better and solved.attempt == "lens held" and solved.warnings == []
+    assert [record["result"] for record in solved.attempts] == ["used"]
+    worse = _Model(0.0, ["one", "two"])  # more warnings held than fitted: the fitted lens stays
+    solved, _ = _lens_held(monkeypatch, suspect, worse)
+    assert solved.model is suspect and solved.attempt == "incremental mapper"
+
+
+def test_a_suspect_lens_whose_held_re_run_finds_no_depth_is_refused(monkeypatch):
+    from liquidgs.data.colmap import NoDepthError, SolveError
+
+    suspect = _Model(1.08, ["radial distortion k1 +1.080 is beyond a phone's"])
+    with pytest.raises(NoDepthError, match=r"k1 \+1\.080, not a phone's\) COLMAP made up depth"):
+        _lens_held(monkeypatch, suspect, NoDepthError("the camera seems to turn in place"))
+    solved, _ = _lens_held(monkeypatch, suspect, SolveError("COLMAP registered only 3 of 80 frames"))
+    assert solved.model is suspect  # refused for another reason: the fitted model stays, with its warnings

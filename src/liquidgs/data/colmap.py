@@ -30,7 +30,7 @@ from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 
-from liquidgs.data.plausibility import MIN_POINTS_PER_FRAME, model_warnings
+from liquidgs.data.plausibility import MIN_POINTS_PER_FRAME, lens_warnings, model_warnings
 from liquidgs.data.stage_times import StageTimes
 from liquidgs.errors import LiquidGSError
 
@@ -116,6 +116,8 @@ class Attempt:
     min_registered_share: float = MIN_REGISTERED_SHARE
     """The share of the frames its model must register to be used."""
     kind: MapperKind = "incremental"
+    hold_distortion: bool = False
+    """Keep the lens's radial distortion at 0 in bundle adjustment (the re-run of a suspect lens)."""
 
 
 # COLMAP itself starts from an initial pair with at least 100 inlier matches seen at 16 degrees or
@@ -243,7 +245,9 @@ def solve_cameras(
                 log(f"{label} refused: {error}")
                 if held is not None:  # the global model was usable: it stays the answer
                     log(f"camera solve: the {held[0]}'s model is kept ({len(held[2])} warning(s); {label} refused)")
-                    return _solved(held[1], attempts[0], records, times, held[2])
+                    chosen = (held[1], attempts[0], held[2])
+                    return _with_lens_held(pycolmap, database_path, frames_dir, work_dir, chosen, total, options,
+                                           log, records, times)  # fmt: skip
                 if number < len(attempts):
                     log(f"next: attempt {number + 1} of {len(attempts)} will try {attempts[number].changes}")
                 continue
@@ -254,10 +258,13 @@ def solve_cameras(
                 if len(warnings) <= len(held_warnings):  # a tie goes to the incremental mapper, the tried one
                     log(f"camera solve: {label} is used: {len(warnings)} warning(s) against the "
                         f"{held_label}'s {len(held_warnings)}")  # fmt: skip
-                    return _solved(model, attempt, records, times, warnings)
+                    return _with_lens_held(pycolmap, database_path, frames_dir, work_dir, (model, attempt, warnings),
+                                           total, options, log, records, times)  # fmt: skip
                 log(f"camera solve: the {held_label}'s model is kept ({len(held_warnings)} warning(s) against "
                     f"{len(warnings)} of {label})")  # fmt: skip
-                return _solved(held_model, attempts[0], records, times, held_warnings)
+                return _with_lens_held(pycolmap, database_path, frames_dir, work_dir,
+                                       (held_model, attempts[0], held_warnings), total, options, log, records,
+                                       times)  # fmt: skip
             if attempt.kind == "global" and warnings and number < len(attempts):
                 for warning in warnings:
                     log(f"{label}: warning: {warning}")
@@ -272,7 +279,8 @@ def solve_cameras(
                 else "the incremental mapper solved it"
             )
             log(f"camera solve: {label} succeeded; {reason}")
-            return _solved(model, attempt, records, times, warnings)
+            return _with_lens_held(pycolmap, database_path, frames_dir, work_dir, (model, attempt, warnings), total,
+                                   options, log, records, times)  # fmt: skip
     cause = next((failure for failure in failures if isinstance(failure, NoDepthError)), failures[-1])
     tried = ", ".join(record["name"] for record in records)
     _refuse_cut(database_path, image_names, f" [COLMAP tried: {tried}]")
@@ -307,6 +315,55 @@ def cut_in(database_path: Path, image_names: list[str]) -> tuple[str, str] | Non
         if crossing[gap] == 0:
             return image_names[gap - 1].rsplit(".", 1)[0], image_names[gap].rsplit(".", 1)[0]
     return None
+
+
+def _with_lens_held(pycolmap, database_path: Path, frames_dir: Path, work_dir: Path, chosen, total: int,
+                    options: SolveOptions, log: Log, records: list[dict], times: StageTimes) -> Solved:  # fmt: skip
+    """The chosen (model, attempt, warnings), re-run once with the lens's distortion held at 0 when the
+    lens it fitted is not a phone's (data.plausibility.lens_warnings): focal length and distortion
+    trade off on a clip with little parallax, and a distortion far from any phone's can make up depth a
+    camera turning in place never saw (measured: a rendered 10-frame pan solved with k1 +1.08, 6 of 10
+    frames and 501 points). The re-run's model is used when it is usable with no more warnings; when it
+    finds no depth, the clip is refused as a camera turning in place; otherwise the chosen model stays,
+    with its warnings."""
+    model, attempt, warnings = chosen
+    camera = next(iter(model.cameras.values()))
+    if camera.model_name != "SIMPLE_RADIAL" or not lens_warnings(
+        camera.model_name, list(camera.params), camera.width, camera.height
+    ):
+        return _solved(model, attempt, records, times, warnings)
+    fitted = f"f {camera.params[0]:.0f} px, k1 {camera.params[3]:+.3f}"
+    held = Attempt(
+        "lens held", attempt.matcher, f"the same matches, COLMAP's incremental mapper with the lens's distortion held "
+        f"at 0 (the lens fitted, {fitted}, is not a phone's)", min_registered_share=attempt.min_registered_share,
+        hold_distortion=True,
+    )  # fmt: skip
+    label = f"re-run ({held.name})"
+    log(f"{label}: {held.changes}")
+    started = time.perf_counter()
+    try:
+        with times.stage("mapping"):
+            held_model, _ = _map(pycolmap, database_path, frames_dir, work_dir / "sparse-lens-held", held, total,
+                                 options, log)  # fmt: skip
+        check_model(held_model, total, held.min_registered_share)
+    except NoDepthError as error:
+        records.append(_record(held, str(error), started))
+        log(f"{label} refused: {error}")
+        raise NoDepthError(
+            f"{error}; with the lens it fitted ({fitted}, not a phone's) COLMAP made up depth the frames do not show"
+        ) from None
+    except SolveError as error:
+        records.append(_record(held, str(error), started))
+        log(f"{label} refused: {error}; the model of {attempt.name} is kept, with its warnings")
+        return _solved(model, attempt, records, times, warnings)
+    held_warnings = model_warnings(held_model)
+    records.append(_record(held, "usable", started, held_warnings))
+    if len(held_warnings) <= len(warnings):
+        log(f"camera solve: {label} is used: {len(held_warnings)} warning(s) against {len(warnings)} of {attempt.name}")
+        return _solved(held_model, held, records, times, held_warnings)
+    log(f"camera solve: the model of {attempt.name} is kept ({len(warnings)} warning(s) against {len(held_warnings)} "
+        f"with the lens held)")  # fmt: skip
+    return _solved(model, attempt, records, times, warnings)
 
 
 def _solved(model, attempt: Attempt, records: list[dict], times: StageTimes, warnings: list[str]) -> Solved:
@@ -416,6 +473,7 @@ def _map(pycolmap, database_path: Path, frames_dir: Path, sparse_dir: Path, atte
         mapping.num_threads = options.threads
         mapping.random_seed = SEED
         mapping.max_runtime_seconds = options.deadline
+        mapping.ba_refine_extra_params = not attempt.hold_distortion
         for name, value in attempt.mapper.items():
             setattr(mapping.mapper, name, value)
         registered = [0]
