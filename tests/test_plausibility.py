@@ -80,9 +80,8 @@ def _lens_held(monkeypatch, suspect: _Model, held: _Model | Exception):
     monkeypatch.setattr(colmap, "check_model", fake_check)
     monkeypatch.setattr(colmap, "model_warnings", lambda model: model.warnings)
     attempt = colmap.Attempt("incremental mapper", "sequential", "the first")
-    chosen = (suspect, attempt, suspect.warnings)
-    solved = colmap._with_lens_held(None, None, None, Path("/nonexistent"), chosen, 80, colmap.SolveOptions(),
-                                    lambda line: None, [], StageTimes())  # fmt: skip
+    solved = colmap._with_lens_held(None, None, None, Path("/nonexistent"), suspect, attempt, suspect.warnings, 80,
+                                    colmap.SolveOptions(), lambda line: None, [], StageTimes())  # fmt: skip
     return solved, reruns
 
 

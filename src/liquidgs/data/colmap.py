@@ -208,6 +208,11 @@ def solve_cameras(
         # Each matcher runs once: a later attempt with the same matcher reuses its pairs, or its refusal.
         matching: dict[Matcher, SolveError | None] = {}
         held: tuple[str, pycolmap.Reconstruction, list[str]] | None = None  # a global model with warnings
+
+        def use(model, attempt: Attempt, warnings: list[str]) -> Solved:
+            return _with_lens_held(pycolmap, database_path, frames_dir, work_dir, model, attempt, warnings, total,
+                                   options, log, records, times)  # fmt: skip
+
         for number, attempt in enumerate(attempts, 1):
             label = f"attempt {number} of {len(attempts)} ({attempt.name})"
             log(f"{label}: {attempt.changes}")
@@ -245,9 +250,7 @@ def solve_cameras(
                 log(f"{label} refused: {error}")
                 if held is not None:  # the global model was usable: it stays the answer
                     log(f"camera solve: the {held[0]}'s model is kept ({len(held[2])} warning(s); {label} refused)")
-                    chosen = (held[1], attempts[0], held[2])
-                    return _with_lens_held(pycolmap, database_path, frames_dir, work_dir, chosen, total, options,
-                                           log, records, times)  # fmt: skip
+                    return use(held[1], attempts[0], held[2])
                 if number < len(attempts):
                     log(f"next: attempt {number + 1} of {len(attempts)} will try {attempts[number].changes}")
                 continue
@@ -258,13 +261,10 @@ def solve_cameras(
                 if len(warnings) <= len(held_warnings):  # a tie goes to the incremental mapper, the tried one
                     log(f"camera solve: {label} is used: {len(warnings)} warning(s) against the "
                         f"{held_label}'s {len(held_warnings)}")  # fmt: skip
-                    return _with_lens_held(pycolmap, database_path, frames_dir, work_dir, (model, attempt, warnings),
-                                           total, options, log, records, times)  # fmt: skip
+                    return use(model, attempt, warnings)
                 log(f"camera solve: the {held_label}'s model is kept ({len(held_warnings)} warning(s) against "
                     f"{len(warnings)} of {label})")  # fmt: skip
-                return _with_lens_held(pycolmap, database_path, frames_dir, work_dir,
-                                       (held_model, attempts[0], held_warnings), total, options, log, records,
-                                       times)  # fmt: skip
+                return use(held_model, attempts[0], held_warnings)
             if attempt.kind == "global" and warnings and number < len(attempts):
                 for warning in warnings:
                     log(f"{label}: warning: {warning}")
@@ -279,8 +279,7 @@ def solve_cameras(
                 else "the incremental mapper solved it"
             )
             log(f"camera solve: {label} succeeded; {reason}")
-            return _with_lens_held(pycolmap, database_path, frames_dir, work_dir, (model, attempt, warnings), total,
-                                   options, log, records, times)  # fmt: skip
+            return use(model, attempt, warnings)
     cause = next((failure for failure in failures if isinstance(failure, NoDepthError)), failures[-1])
     tried = ", ".join(record["name"] for record in records)
     _refuse_cut(database_path, image_names, f" [COLMAP tried: {tried}]")
@@ -317,16 +316,16 @@ def cut_in(database_path: Path, image_names: list[str]) -> tuple[str, str] | Non
     return None
 
 
-def _with_lens_held(pycolmap, database_path: Path, frames_dir: Path, work_dir: Path, chosen, total: int,
-                    options: SolveOptions, log: Log, records: list[dict], times: StageTimes) -> Solved:  # fmt: skip
-    """The chosen (model, attempt, warnings), re-run once with the lens's distortion held at 0 when the
-    lens it fitted is not a phone's (data.plausibility.lens_warnings): focal length and distortion
+def _with_lens_held(pycolmap, database_path: Path, frames_dir: Path, work_dir: Path, model, attempt: Attempt,
+                    warnings: list[str], total: int, options: SolveOptions, log: Log, records: list[dict],
+                    times: StageTimes) -> Solved:  # fmt: skip
+    """The chosen model (of `attempt`, with its `warnings`), re-run once with the lens's distortion held
+    at 0 when the lens it fitted is not a phone's (data.plausibility.lens_warnings): focal length and distortion
     trade off on a clip with little parallax, and a distortion far from any phone's can make up depth a
     camera turning in place never saw (measured: a rendered 10-frame pan solved with k1 +1.08, 6 of 10
     frames and 501 points). The re-run's model is used when it is usable with no more warnings; when it
     finds no depth, the clip is refused as a camera turning in place; otherwise the chosen model stays,
     with its warnings."""
-    model, attempt, warnings = chosen
     camera = next(iter(model.cameras.values()))
     if camera.model_name != "SIMPLE_RADIAL" or not lens_warnings(
         camera.model_name, list(camera.params), camera.width, camera.height
