@@ -10,7 +10,7 @@ import gsplat_cpu_kernels
 from liquidgs.cameras import Camera
 from liquidgs.data.flow import FlowPair
 from liquidgs.render import cpu_backend, gsplat_backend
-from liquidgs.train.flow_loss import FlowLoss, project, rendered_flow
+from liquidgs.train.flow_loss import FlowLoss, project_with_depth, rendered_flow
 from liquidgs.train.model import Deformed, render_frame
 
 WIDTH, HEIGHT, FOCAL = 48, 32, 40.0
@@ -58,10 +58,10 @@ def test_the_composited_flow_of_two_gaussians_is_their_own_motion(backend, reque
     shift = torch.tensor([[0.2, 0.0, 0.0], [0.0, -0.1, 0.0]], dtype=torch.float64)
     later = Deformed(**{key: value.to(dtype) for key, value in vars(two_gaussians(shift)).items()})
     flow, alpha = rendered_flow(now, camera(), later, camera(0.1), backend=backend)
-    expected = project(later.means, camera(0.1)) - project(now.means, camera())
+    expected = project_with_depth(later.means, camera(0.1))[0] - project_with_depth(now.means, camera())[0]
     assert expected[0].tolist() == pytest.approx([(0.2 - 0.1) * FOCAL / 4, 0.0])  # its move less the camera's
     assert expected[1].tolist() == pytest.approx([-0.1 * FOCAL / 4, -0.1 * FOCAL / 4])
-    for centre, motion in zip(project(now.means, camera()), expected):
+    for centre, motion in zip(project_with_depth(now.means, camera())[0], expected):
         col, row = int(centre[0]), int(centre[1])
         assert alpha[row, col] > 0.9
         assert flow[row, col].tolist() == pytest.approx(motion.tolist(), abs=1e-6 if dtype == torch.float64 else 1e-4)
@@ -113,7 +113,7 @@ def test_a_gaussian_behind_or_beside_the_neighbours_camera_neither_counts_nor_le
     later = two_gaussians(shift)
     later.means.requires_grad_(True)
     flow, covered = rendered_flow(now, camera(), later, camera(0.1), backend="torch")
-    first, second = (project(now.means, camera())[i].long().tolist() for i in (0, 1))
+    first, second = (project_with_depth(now.means, camera())[0][i].long().tolist() for i in (0, 1))
     assert covered[first[1], first[0]] < 1e-6 and covered[second[1], second[0]] > 0.9
     assert flow[second[1], second[0]].tolist() == pytest.approx([-0.1 * FOCAL / 4, 0.0])
     valid = np.ones((HEIGHT, WIDTH), bool)

@@ -138,14 +138,9 @@ def rendered_flow(now: Deformed, camera: Camera, later: Deformed, later_camera: 
                                         features=motion))  # fmt: skip
 
 
-def project(means: torch.Tensor, camera: Camera) -> torch.Tensor:
-    """Pixel positions [N, 2] of world points [N, 3] through a pinhole camera (points behind it
-    project through a depth clamped at 1e-6)."""
-    return project_with_depth(means, camera)[0]
-
-
 def project_with_depth(means: torch.Tensor, camera: Camera) -> tuple[torch.Tensor, torch.Tensor]:
-    """`project`'s pixel positions [N, 2] and each point's depth in front of the camera [N]."""
+    """Pixel positions [N, 2] of world points [N, 3] through a pinhole camera (points behind it
+    project through a depth clamped at 1e-6), and each point's depth in front of the camera [N]."""
     viewmat = camera.viewmat.to(means)
     K = camera.K.to(means)
     in_camera = means @ viewmat[:3, :3].T + viewmat[:3, 3]
