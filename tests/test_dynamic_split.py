@@ -18,7 +18,7 @@ from liquidgs.errors import LiquidGSError
 from liquidgs.train.config import config_hash, identity
 from liquidgs.train.dataset import load_run_dataset
 from liquidgs.train.dynamic_split import DYNAMIC, MotionVotes, SplitConfig
-from liquidgs.train.flow_loss import project
+from liquidgs.train.flow_loss import project_with_depth
 from liquidgs.train.run import load_run
 from liquidgs.train.strategy import D3DGSStrategy, DensifyConfig, _duplicate_unmeasured, _split
 from shared_data import use_optional_lpips
@@ -43,7 +43,7 @@ def test_a_point_the_masks_hold_in_every_frame_is_dynamic_and_one_they_never_hol
     held, elsewhere = torch.tensor([[0.05, 0.02, 0.0]]), torch.tensor([[0.3, -0.25, 0.1]])
     votes.masks[:] = False
     for i, frame in enumerate(train):  # each frame's mask is the one pixel the first point falls in
-        col, row = project(held.double(), frame.camera).floor().long()[0].tolist()
+        col, row = project_with_depth(held.double(), frame.camera)[0].floor().long()[0].tolist()
         votes.masks[i, row, col] = True
     assert votes.vote(torch.cat([held, elsewhere])).tolist() == [1.0, 0.0]
     assert votes.initial(torch.cat([held, elsewhere])).tolist() == [True, False]
