@@ -34,6 +34,13 @@ LONGEST_FIRST = (
     "test_bake_web.py",
     "test_data_video_failures.py",
     "test_demo.py",
+    "test_train.py",  # the 10-20 s files next, so only short ones are left for the end
+    "test_viewer.py",
+    "test_crash_safety.py",
+    "test_render_cpu.py",
+    "test_motion_reg.py",
+    "test_wheel.py",
+    "test_provenance.py",
 )
 
 

@@ -347,7 +347,9 @@ def test_run_skip_done_and_keep_going_after_a_failure(data_root, tmp_path):
 
 @pytest.mark.slow
 def test_an_interrupted_grid_resumes_and_trains_every_run_once(data_root, tmp_path):
-    spec = small_spec(overrides=tiny_overrides({"iterations": 60, "checkpoint_every": 5, "eval.start": 60}))
+    spec = small_spec(  # two runs: one finished, the next in flight when the driver is killed
+        fields=["mlp"], overrides=tiny_overrides({"iterations": 60, "checkpoint_every": 5, "eval.start": 60})
+    )
     spec_file = write_spec(tmp_path / "s.yml", spec)
     out = tmp_path / "e"
     command = [sys.executable, "-m", "liquidgs.cli", "experiment", "run", str(spec_file),
