@@ -27,6 +27,7 @@ from PIL import Image
 from liquidgs.data import DataConfig, check_dataset, load_dataset
 from liquidgs.data.capture import CaptureSettings, capture_scene
 from liquidgs.data.colmap import SolveOptions
+from liquidgs.data.flow import chain_flow
 from liquidgs.data.pose_accuracy import scene_poses, score_poses, similarity
 from liquidgs.data.synthetic import render_rgba
 from liquidgs.data.video import extract_video_frames
@@ -451,7 +452,18 @@ def test_the_scene_has_flow_and_motion_masks_that_find_the_ball(video_scene, han
     assert sorted(record["masks"]) == sorted(dataset["ids"]) and len(list((folder / "masks").iterdir())) == FRAMES
     with np.load(folder / "pairs" / f"{record['pairs'][0][0]}--{record['pairs'][0][1]}.npz") as pair:
         assert pair["forward"].shape == (*record["size"][::-1], 2) and pair["forward_consistent"].mean() > 0.8
-    assert "flow " in stdout and run_cli(["data", "check", str(out)])[1].count("flow:       1x: 27 pairs") == 1
+    checked = run_cli(["data", "check", str(out)])[1]
+    assert "flow " in stdout and checked.count("flow:       1x: 27 pairs, 25 tracks over 4 frames, 32 motion") == 1
+    # A track is its three pairs chained: from each train frame to the third after it, and back.
+    train = dataset["train_ids"]
+    assert record["track_step"] == 3 and record["tracks"] == [[a, b] for a, b in zip(train[:-3], train[3:])]
+    links = [np.load(folder / "pairs" / f"{a}--{b}.npz") for a, b in record["pairs"][:3]]
+    with np.load(folder / "pairs" / f"{train[0]}--{train[3]}.npz") as track:
+        forward = [link["forward"].astype(np.float32) for link in links]
+        chained, kept = chain_flow(forward, [link["forward_consistent"] for link in links])
+        error = np.abs(track["forward"] - chained).max(axis=-1)  # the links are read back as float16
+        assert np.percentile(error[kept], 99) < 0.05 and (track["forward_consistent"] <= kept).all()
+        assert 0.5 < track["forward_consistent"].mean() <= kept.mean() and track["backward_consistent"].mean() > 0.5
     pairs = ball_masks(out, handheld)
     still = np.mean([(mask & ~truth).mean() for mask, truth in pairs])
     flagged = [(mask & truth).sum() / mask.sum() for mask, truth in pairs if mask.any()]

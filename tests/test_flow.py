@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import json
 import math
+import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -86,6 +89,24 @@ def test_flow_of_a_shifted_image_is_the_shift_and_consistent_both_ways():
     assert flow.consistent(forward, broken)[12:28, 12:26].mean() < 0.05
 
 
+def test_chained_flow_follows_each_link_from_where_the_last_one_ended():
+    """Three links: +2 px in y everywhere; then a shear, +y/8 px in x, read where the first link
+    ended (y + 2, not the y the chain started at); then +1 px in x. A link that is invalid where the
+    chain reaches it, or a chain that leaves the image, cuts the track."""
+    gx, gy = np.meshgrid(np.arange(WIDTH, dtype=np.float32), np.arange(HEIGHT, dtype=np.float32))
+    down = np.stack([np.zeros_like(gx), np.full_like(gx, 2.0)], axis=-1)
+    shear = np.stack([gy / 8, np.zeros_like(gx)], axis=-1)
+    right = np.stack([np.ones_like(gx), np.zeros_like(gx)], axis=-1)
+    valid = [np.ones((HEIGHT, WIDTH), bool) for _ in range(3)]
+    valid[1][20:30, 40:50] = False  # where the shear's flow cannot be trusted
+    chained, kept = flow.chain_flow([down, shear, right], valid)
+    inside = np.s_[:-2]  # the rows whose chain stays in the image
+    assert np.allclose(chained[inside][..., 0], (gy[inside] + 2) / 8 + 1) and np.allclose(chained[..., 1], 2.0)
+    assert not kept[18:28, 40:50].any() and kept[28:30, 40:50].all()  # cut where the chain reached the hole
+    assert not kept[-2:].any() and not kept[:, -2:].any()  # ends below or right of the image
+    assert kept[:18, : WIDTH - 10].all() and kept[30:-2, : WIDTH - 10].all()  # elsewhere every link held
+
+
 def test_a_mask_keeps_a_moving_region_and_drops_speckle_and_untextured_pixels():
     error = np.zeros((HEIGHT, WIDTH), np.float32)
     error[10:30, 10:30] = 5.0  # a moving subject
@@ -96,3 +117,16 @@ def test_a_mask_keeps_a_moving_region_and_drops_speckle_and_untextured_pixels():
     assert mask[12:28, 12:28].all() and not mask[50, 80] and not mask[5, 70] and mask.sum() < 30 * 30
     assert not flow.motion_mask([(error, valid)], np.zeros_like(valid)).any()  # a blank wall is no evidence
     assert not flow.motion_mask([(error, np.zeros_like(valid))], textured).any()  # nor inconsistent flow
+
+
+def test_a_broken_track_is_one_line_naming_its_file(flow_capture, tmp_path):
+    scene = Path(shutil.copytree(flow_capture, tmp_path / "scene"))
+    folder = scene / "flow" / "1x"
+    record = json.loads((folder / "flow.json").read_text())
+    first, last = record["tracks"][0]
+    track = folder / "pairs" / f"{first}--{last}.npz"
+    track.write_bytes(b"not a zip")
+    problems = flow.check_flow(scene, 1)
+    assert len(problems) == 1 and problems[0].startswith(f"{track}: unreadable flow")
+    (folder / "flow.json").write_text(json.dumps({**record, "tracks": "all of them"}))
+    assert flow.check_flow(scene, 1) == [f"{folder / 'flow.json'}: field 'tracks': not a list of pairs"]

@@ -104,6 +104,18 @@ def test_the_loss_is_zero_for_the_true_flow_and_the_l1_of_the_error_otherwise():
     assert loss.target(7, np.random.default_rng(0)) is None  # a frame without flow
 
 
+def test_a_frame_draws_its_neighbours_and_the_far_ends_of_its_tracks():
+    flow = np.zeros((HEIGHT, WIDTH, 2), np.float32)
+    valid = np.ones((HEIGHT, WIDTH), bool)
+    names = ["a", "b", "c", "d", "e"]
+    pairs = [FlowPair(x, y, flow, flow, valid, valid) for x, y in zip(names[:-1], names[1:])]
+    tracks = [FlowPair(x, y, flow, flow, valid, valid, track=True) for x, y in (("a", "d"), ("b", "e"))]
+    loss = FlowLoss(0.02, [*pairs, *tracks], names, torch.device("cpu"))
+    rng = np.random.default_rng(0)
+    drawn = {frame: {loss.target(frame, rng).neighbour for _ in range(64)} for frame in range(5)}
+    assert drawn == {0: {1, 3}, 1: {0, 2, 4}, 2: {1, 3}, 3: {2, 4, 0}, 4: {3, 1}}
+
+
 def test_a_gaussian_behind_or_beside_the_neighbours_camera_neither_counts_nor_learns():
     """On a real clip (lady-running) Gaussians in front of one camera but at or behind the next one's
     image plane composited thousands of pixels of motion into the flow and wrecked the training: such

@@ -15,7 +15,7 @@ from liquidgs.commands.progress import StageLog
 from liquidgs.data import DataConfig, check_dataset, generate_synthetic
 from liquidgs.data.capture import training_downscale
 from liquidgs.data.colmap import DEADLINE_SECONDS, MapperKind, Matcher, SolveOptions, import_pycolmap
-from liquidgs.data.flow import check_scene_flow, compute_scene_flow, import_cv2, scene_image_size
+from liquidgs.data.flow import TRACK_STEP, check_scene_flow, compute_scene_flow, import_cv2, scene_image_size
 from liquidgs.data.scene import Background, DataFormat, Split
 from liquidgs.errors import ConfigError
 from liquidgs.settings import parse_flags
@@ -142,9 +142,10 @@ class ImagesArgs(CaptureArgs):
 
 @dataclass(kw_only=True)
 class FlowArgs:
-    """Optical flow between neighbouring train frames and a motion mask per frame (pixels whose flow the
-    cameras' motion cannot explain) of a Nerfies-layout scene, into SCENE/flow/<k>x; a flow folder
-    already there for that scale is replaced once the new one is complete."""
+    """Optical flow between neighbouring train frames, tracks (that flow chained over three pairs) and
+    a motion mask per frame (pixels whose flow the cameras' motion cannot explain) of a Nerfies-layout
+    scene, into SCENE/flow/<k>x; a flow folder already there for that scale is replaced once the new
+    one is complete."""
 
     scene: tyro.conf.Positional[Path]
     """Scene folder in the Nerfies layout (what `data video` / `data images` write)."""
@@ -294,7 +295,8 @@ def flow(args: FlowArgs) -> int:
         summary = compute_scene_flow(args.scene, downscale, log)
     width, height = summary.size
     print(
-        f"done: {summary.pairs} flow pairs and {summary.masks} motion masks at {width}x{height} "
+        f"done: {summary.pairs} flow pairs, {summary.tracks} tracks over {TRACK_STEP + 1} frames and "
+        f"{summary.masks} motion masks at {width}x{height} "
         f"({100 * summary.mean_moving_share:.1f}% of pixels moving on average), {summary.seconds:.1f} s "
         f"-> {summary.folder}"
     )

@@ -1,16 +1,17 @@
 """The optical-flow loss: the motion the Gaussians make on screen, held to the motion measured in the
 video (data.flow).
 
-For a train frame at time t and its neighbouring train frame at time t', each Gaussian's motion on
-screen is where the neighbour's camera sees it at t' minus where this frame's camera sees it at t
-(each Gaussian deformed by the field at its own time, each camera with its refinement). Those 2D
-motions are composited per pixel with the same weights as colour - as extra feature channels of the
-colour pass itself (rasterize's `features`, on every backend), so they cost no raster pass of their
-own - and compared with the measured flow (L1, in pixels) where the flow is consistent both ways and
-the render is opaque with Gaussians whose motion is measurable (see screen_motion: one in front of
-only one of the two cameras, or moving further than the image is wide, would pull a pixel's flow by
-thousands of pixels - it did on a real clip - so it neither counts nor learns). Its gradient
-reaches the Gaussians through that pass, so densification's screen-space gradients carry it too.
+For a train frame at time t and its neighbouring train frame at time t' (or the frame at the other
+end of a track that starts or ends at it), each Gaussian's motion on screen is where the neighbour's
+camera sees it at t' minus where this frame's camera sees it at t (each Gaussian deformed by the
+field at its own time, each camera with its refinement). Those 2D motions are composited per pixel
+with the same weights as colour - as extra feature channels of the colour pass itself (rasterize's
+`features`, on every backend), so they cost no raster pass of their own - and compared with the
+measured flow (L1, in pixels) where the flow is consistent both ways and the render is opaque with
+Gaussians whose motion is measurable (see screen_motion: one in front of only one of the two
+cameras, or moving further than the image is wide, would pull a pixel's flow by thousands of pixels
+- it did on a real clip - so it neither counts nor learns). Its gradient reaches the Gaussians
+through that pass, so densification's screen-space gradients carry it too.
 By default (flow.weight unset) on at DEFAULT_WEIGHT for a capture with flow at the scale the run
 reads (`liquidgs data flow SCENE --downscale K` makes it), off elsewhere (train.config's
 with_motion_evidence decides, and config.yml records the weight decided); a weight set is used
@@ -47,6 +48,9 @@ class FlowLossConfig:
     weight: float | None = None
     """The loss's weight (L1 in pixels of the training images); 0: off. Unset: 0.02 (DEFAULT_WEIGHT)
     where the scene has optical flow at the training scale (`liquidgs data flow`), else 0."""
+    tracks: bool | None = None
+    """Hold the Gaussians to the scene's tracks too (the flow chained over 3 pairs of neighbouring
+    frames), beside each frame's flow to its neighbours. Unset: where the scene's flow has tracks."""
 
     def __post_init__(self) -> None:
         if self.weight is not None:
@@ -70,7 +74,8 @@ class DrawnFlow:
 
 
 class FlowLoss:
-    """Each train frame's measured flow to its neighbours (forward to the next, backward to the previous)."""
+    """Each train frame's measured flow to its neighbours (forward to the next, backward to the previous)
+    and, where given, along the tracks that start or end at it; one of them is drawn each step."""
 
     def __init__(self, weight: float, pairs: list[FlowPair], train_names: list[str], device: torch.device):
         self.weight = weight

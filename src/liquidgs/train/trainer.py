@@ -224,7 +224,13 @@ class Trainer:
                 f"flow.weight: the optical-flow loss needs a capture with flow; {self.cfg.data.path} is D-NeRF"
             )
         # At the scale of the images trained on: flow.json's hashes tie it to those very files.
-        pairs = read_flow_pairs(self.cfg.data.path, image_scale(self.cfg.data.path, self.dataset.train))
+        scale = image_scale(self.cfg.data.path, self.dataset.train)
+        pairs = read_flow_pairs(self.cfg.data.path, scale, tracks=bool(self.cfg.flow.tracks))
+        if self.cfg.flow.tracks and not any(pair.track for pair in pairs):
+            raise ConfigError(
+                f"flow.tracks: the flow of {self.cfg.data.path} at {scale}x holds no tracks (computed before "
+                f"them); compute it again: liquidgs data flow {self.cfg.data.path} --downscale {scale}"
+            )
         names = [frame.name for frame in self.dataset.train]
         return FlowLoss(self.cfg.flow.weight, pairs, names, self.device)
 
