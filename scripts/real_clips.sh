@@ -12,7 +12,8 @@
 #    DIR/experiment); then real-clips-without-regularisers.yml, seed 0 of each field with every motion
 #    weight at 0 (into DIR/experiment-without-regularisers); then with the motion evidence (the flow
 #    loss and the static/dynamic split: real-clips-motion.yml) and without each piece in turn
-#    (real-clips-motion-without-flow.yml, -without-split.yml), into DIR/experiment-<spec>;
+#    (real-clips-motion-without-flow.yml, -without-split.yml), and with the tracks
+#    (real-clips-motion-with-tracks.yml), into DIR/experiment-<spec>;
 # 4. masks of the moving subject on each test view, from the boxes drawn by eye in
 #    docs/experiments/real-clips-boxes.json, and `liquidgs eval --mask` of every finished run of a clip
 #    that has them (scores inside and outside, test cameras as given and aligned); the runs with the
@@ -52,7 +53,7 @@ done
 "${liquidgs[@]}" experiment run "$specs/real-clips.yml" --data-root "$out/scenes" --out "$out/experiment"
 "${liquidgs[@]}" experiment run "$specs/real-clips-without-regularisers.yml" --data-root "$out/scenes" \
     --out "$out/experiment-without-regularisers"
-for spec in motion motion-without-flow motion-without-split; do
+for spec in motion motion-with-tracks motion-without-flow motion-without-split; do
     "${liquidgs[@]}" experiment run "$specs/real-clips-$spec.yml" --data-root "$out/scenes" --out "$out/experiment-$spec"
 done
 
@@ -91,6 +92,6 @@ done
 "${python[@]}" "$root/docs/experiments/real_clips_mask_agreement.py" "$out/scenes" | tee "$out/mask-agreement.txt"
 "${liquidgs[@]}" experiment report "$out/experiment"
 "${liquidgs[@]}" experiment report "$out/experiment-without-regularisers"
-for spec in motion motion-without-flow motion-without-split; do
+for spec in motion motion-with-tracks motion-without-flow motion-without-split; do
     "${liquidgs[@]}" experiment report "$out/experiment-$spec"
 done

@@ -311,8 +311,8 @@ def test_the_rebuild_script_downloads_registers_each_clip_and_runs_the_spec(serv
     specs = script.parents[1] / "docs" / "experiments"
     scenes, masks = str(bench / "scenes"), str(bench / "masks" / "cat")
     experiment, without = str(bench / "experiment"), str(bench / "experiment-without-regularisers")
-    motion = ["motion", "motion-without-flow", "motion-without-split"]
-    assert calls[4:11] == [
+    motion = ["motion", "motion-with-tracks", "motion-without-flow", "motion-without-split"]
+    assert calls[4:12] == [
         ["experiment", "run", str(specs / "real-clips.yml"), "--data-root", scenes, "--out", experiment],
         ["experiment", "run", str(specs / "real-clips-without-regularisers.yml"), "--data-root", scenes,
          "--out", without],
@@ -325,7 +325,7 @@ def test_the_rebuild_script_downloads_registers_each_clip_and_runs_the_spec(serv
     motion_runs = [bench / f"experiment-{spec}" / "real-clips" / "cat" / "mlp" / "0123abcd" for spec in motion]
     scored = [["eval", "--run", str(r), "--mask", m, *(["--flow-error"] if m == "auto" else [])]
               for r in motion_runs for m in ("auto", masks)]  # fmt: skip
-    assert sorted(calls[11:17]) == sorted(scored)
+    assert sorted(calls[12:20]) == sorted(scored)
     for motion_run in motion_runs:
         assert calls.index(["eval", "--run", str(motion_run), "--mask", "auto", "--flow-error"]) < \
             calls.index(["eval", "--run", str(motion_run), "--mask", masks])  # fmt: skip
@@ -333,7 +333,7 @@ def test_the_rebuild_script_downloads_registers_each_clip_and_runs_the_spec(serv
         assert json.loads((motion_run / "eval.json").read_text()) == {"masks": masks}
         assert (motion_run / "eval-auto_per_view.json").is_file() and (motion_run / "eval_per_view.json").is_file()
     reports = [experiment, without, *(str(bench / f"experiment-{spec}") for spec in motion)]
-    assert calls[17:] == [["experiment", "report", folder] for folder in reports]
+    assert calls[20:] == [["experiment", "report", folder] for folder in reports]
     # The masks: every test view of every moving clip, its box 255 inside at the view's size.
     boxes = json.loads((script.parents[1] / "docs" / "experiments" / "real-clips-boxes.json").read_text())["clips"]
     assert sorted(p.name for p in (bench / "masks").iterdir()) == sorted(boxes) and "apple" not in boxes
@@ -347,10 +347,10 @@ def test_the_rebuild_script_downloads_registers_each_clip_and_runs_the_spec(serv
     assert sorted(p.name for p in (bench / "scenes").iterdir()) == ["apple", "cat"]
     again = subprocess.run(["bash", str(script), str(bench)], env=env, capture_output=True, text=True)
     assert again.returncode == 0, again.stderr
-    calls_again = [json.loads(line) for line in (tmp_path / "liquidgs_stub.py.calls").read_text().splitlines()][22:]
+    calls_again = [json.loads(line) for line in (tmp_path / "liquidgs_stub.py.calls").read_text().splitlines()][26:]
     # The runs with the motion evidence, scored both ways, are not scored again.
-    assert [call[:2] for call in calls_again] == [["data", "video"]] + [["experiment", "run"]] * 5 + \
-        [["eval", "--run"]] * 2 + [["experiment", "report"]] * 5  # fmt: skip
+    assert [call[:2] for call in calls_again] == [["data", "video"]] + [["experiment", "run"]] * 6 + \
+        [["eval", "--run"]] * 2 + [["experiment", "report"]] * 6  # fmt: skip
     assert calls_again[0][2] == str(bench / "clips" / "refused.mp4")  # the refused clip is tried again
 
 
@@ -411,12 +411,13 @@ def test_the_benchmark_with_the_motion_evidence_differs_from_the_benchmark_only_
     spec = load_spec(str(folder / "real-clips.yml"))
     base = {(g.scenes, f, tuple(g.seeds)): g.overrides for g in spec.grids for f in g.fields}
     pieces = {"real-clips-motion": {"flow.weight": 0.02, "split.apply": True},
+              "real-clips-motion-with-tracks": {"flow.weight": 0.02, "flow.tracks": True, "split.apply": True},
               "real-clips-motion-without-flow": {"flow.weight": 0, "split.apply": True},
               "real-clips-motion-without-split": {"flow.weight": 0.02, "split.apply": False}}  # fmt: skip
     for name, evidence in pieces.items():
         motion = load_spec(str(folder / f"{name}.yml"))
         runs = {(g.scenes, f, tuple(g.seeds)): g.overrides for g in motion.grids for f in g.fields}
-        wanted = {key for key in base if name == "real-clips-motion" or key[1] != "static"}
+        wanted = {key for key in base if "without" not in name or key[1] != "static"}
         assert runs.keys() == wanted and motion.name == name, name
         for key, overrides in runs.items():
             assert overrides == {**base[key], **evidence}, (name, key)

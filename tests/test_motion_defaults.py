@@ -47,29 +47,27 @@ def test_a_capture_with_flow_gets_the_flow_loss_and_the_split(flow_capture):
     assert decided.flow.weight == DEFAULT_WEIGHT == 0.02 and decided.split.apply is True
     on, _ = configs(flow_capture, "--flow.weight", "0.02", "--split.apply", "true")
     assert config_hash(given) == config_hash(decided) == config_hash(on)
-    assert decided.flow.tracks is True  # the scene's flow has tracks
-    assert identity(given)["flow"] == {"weight": 0.02, "tracks": True} and identity(given)["split"]["apply"] is True
-    given_off = ["--split.apply", "false", "--flow.tracks", "false"]  # a value given is kept
-    set_off = resolve_config(["--data", str(flow_capture), "--preset", "tiny", *given_off])[0]
+    assert decided.flow.tracks is False  # the tracks are asked for, not decided from the scene
+    assert identity(given)["flow"] == {"weight": 0.02} and identity(given)["split"]["apply"] is True
+    set_off, _ = configs(flow_capture, "--split.apply", "false")  # a value given is kept
     assert with_motion_evidence(set_off).split.apply is False and with_motion_evidence(set_off).flow.weight == 0.02
-    assert with_motion_evidence(set_off).flow.tracks is False and identity(set_off)["flow"] == {"weight": 0.02}
+    tracks = resolve_config(["--data", str(flow_capture), "--preset", "tiny", "--flow.tracks"])[0]
+    assert identity(tracks)["flow"] == {"weight": 0.02, "tracks": True} and config_hash(tracks) != config_hash(given)
 
 
-def test_flow_computed_before_tracks_keeps_the_identity_of_its_runs(flow_capture, tmp_path):
-    """A scene whose flow.json has no tracks (computed before them): its runs train without them, with
-    the identity they had; asking for them is one line naming the command that computes them."""
+def test_tracks_asked_of_flow_computed_before_them_are_one_line(flow_capture, tmp_path):
+    """A scene whose flow.json has no tracks (computed before them): `--flow.tracks` is one line
+    naming the command that computes them; with the flow loss off it has no effect, also one line."""
     older = Path(shutil.copytree(flow_capture, tmp_path / "older"))
     record_file = older / "flow" / "1x" / "flow.json"
     record = json.loads(record_file.read_text())
     del record["tracks"], record["track_step"]
     record_file.write_text(json.dumps(record))
-    given, _ = configs(older)
-    assert with_motion_evidence(given).flow.tracks is False and identity(given)["flow"] == {"weight": 0.02}
     with pytest.raises(ConfigError, match=re.escape(f"holds no tracks (computed before them); compute it again: "
                                                      f"liquidgs data flow {older} --downscale 1")):  # fmt: skip
-        run_train(["--data", str(older), "--field", "mlp", *RUN, "--flow.tracks", "true", "--out", str(tmp_path / "r")])
+        run_train(["--data", str(older), "--field", "mlp", *RUN, "--flow.tracks", "--out", str(tmp_path / "r")])
     with pytest.raises(ConfigError, match="--flow.tracks has no effect: the optical-flow loss is off"):
-        resolve_config(["--data", str(older), "--preset", "tiny", "--flow.weight", "0", "--flow.tracks", "true"])
+        resolve_config(["--data", str(older), "--preset", "tiny", "--flow.weight", "0", "--flow.tracks"])
 
 
 def test_dnerf_and_a_capture_without_flow_at_its_scale_keep_their_identity(flow_capture, puppet_scene, tmp_path):
@@ -109,7 +107,7 @@ def test_config_yml_records_the_decision(flow_capture, tmp_path):
     run_train(["--data", str(flow_capture), "--field", "mlp", *RUN, "--iterations", "6", "--eval.start", "6",
                "--out", str(tmp_path / "run")])  # fmt: skip
     stored = load_yaml(tmp_path / "run" / "config.yml")
-    assert stored.flow.weight == DEFAULT_WEIGHT and stored.split.apply is True and stored.flow.tracks is True
+    assert stored.flow.weight == DEFAULT_WEIGHT and stored.split.apply is True and stored.flow.tracks is False
 
 
 def test_a_run_made_before_the_defaults_resumes_as_it_was_trained(flow_capture, tmp_path, monkeypatch):

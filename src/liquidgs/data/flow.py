@@ -83,10 +83,8 @@ FRAME_STEP = 3
 """A frame's mask compares it with the train frames this many train frames before and after it:
 between neighbouring frames a slow subject (the cat's head) moves less than the cameras' error."""
 TRACK_STEP = 3
-"""Tracks chain this many pairs of neighbouring train frames. Measured on the running woman (seed 0,
-quick look, flow loss 0.02 with the split, aligned, inside the box around her): the subject margin
-over the static model MLP +1.41 -> +2.42 dB, CfC +0.18 -> +2.87, HexPlane +1.06 -> +1.69 with the
-tracks beside the neighbours' flow (docs/results/real-clips.md)."""
+"""Tracks chain this many pairs of neighbouring train frames: the same step as the masks', so a
+track spans what a mask compares (docs/results/real-clips.md: what training on them gave)."""
 MIN_TRAIN_FRAMES = 2
 GEOMETRY_SAMPLE_STEP = 4
 """Before cameras exist, the two-view geometry is fitted to the flow at every 4th pixel both ways."""
@@ -334,17 +332,6 @@ def has_flow(data: DataConfig) -> bool:
         return (flow_folder(data.path, read_scale(data)) / FLOW_FILE).is_file()
     except LiquidGSError:
         return False
-
-
-def has_tracks(data: DataConfig) -> bool:
-    """Whether the flow a run on `data` finds (has_flow) holds tracks (flow computed before them does not)."""
-    if not has_flow(data):
-        return False
-    try:
-        record = json.loads((flow_folder(data.path, read_scale(data)) / FLOW_FILE).read_text())
-    except (OSError, ValueError):
-        return False  # unreadable: refused in one line where it is read
-    return isinstance(record, dict) and bool(record.get("tracks"))
 
 
 def _sources(dataset: SceneDataset, frames: list[Frame]) -> dict[str, str]:

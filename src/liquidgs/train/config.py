@@ -17,7 +17,7 @@ import yaml
 from liquidgs import settings
 from liquidgs.atomic import write_text_atomic
 from liquidgs.data.dnerf import SCENE_BOUND
-from liquidgs.data.flow import has_flow, has_tracks
+from liquidgs.data.flow import has_flow
 from liquidgs.data.perturb import PerturbConfig
 from liquidgs.data.scene import DataConfig
 from liquidgs.errors import ConfigError
@@ -371,13 +371,12 @@ def with_motion_evidence(cfg: TrainConfig) -> TrainConfig:
     both off. A value set (flow.weight, split.apply) is kept. The one owner of these defaults: the
     trainer records its result in config.yml (the run resumes and reproduces as trained, whatever
     later happens to the scene's flow) and the identity hashes it."""
-    if cfg.flow.weight is not None and cfg.flow.tracks is not None and cfg.split.apply is not None:
+    if cfg.flow.weight is not None and cfg.split.apply is not None:
         return cfg
     found = has_flow(cfg.data)
     weight = cfg.flow.weight if cfg.flow.weight is not None else DEFAULT_WEIGHT if found else 0.0
-    tracks = cfg.flow.tracks if cfg.flow.tracks is not None else bool(weight) and has_tracks(cfg.data)
     apply = cfg.split.apply if cfg.split.apply is not None else found
-    return dataclasses.replace(cfg, flow=dataclasses.replace(cfg.flow, weight=weight, tracks=tracks),
+    return dataclasses.replace(cfg, flow=dataclasses.replace(cfg.flow, weight=weight),
                                split=dataclasses.replace(cfg.split, apply=apply))  # fmt: skip
 
 
@@ -473,7 +472,7 @@ def identity_v2(cfg: TrainConfig) -> dict:
         del d["exposure"]
     if not cfg.flow.weight:  # the optical-flow loss, added after version 2: off in every run made before it
         del d["flow"]
-    elif not cfg.flow.tracks:  # tracks, added after the loss: its runs made before them had none
+    elif not cfg.flow.tracks:  # tracks, added after the loss: off in every run made before them
         del d["flow"]["tracks"]
     if not split_applies(cfg.split, cfg.field):  # static and dynamic Gaussians, likewise
         del d["split"]
@@ -611,6 +610,4 @@ def from_dict(raw: dict, source: Path | str = "config") -> TrainConfig:
     for group, off in (("flow", {"weight": 0.0}), ("split", {"apply": False})):  # stored before they existed
         if group not in raw:
             raw = {**raw, group: off}
-    if isinstance(raw["flow"], dict) and "tracks" not in raw["flow"]:  # stored before tracks: trained without
-        raw = {**raw, "flow": {**raw["flow"], "tracks": False}}
     return settings.from_dict(TrainConfig, raw, source)
