@@ -66,8 +66,11 @@ def test_tracks_asked_of_flow_computed_before_them_are_one_line(flow_capture, tm
     with pytest.raises(ConfigError, match=re.escape(f"holds no tracks (computed before them); compute it again: "
                                                      f"liquidgs data flow {older} --downscale 1")):  # fmt: skip
         run_train(["--data", str(older), "--field", "mlp", *RUN, "--flow.tracks", "--out", str(tmp_path / "r")])
-    with pytest.raises(ConfigError, match="--flow.tracks has no effect: the optical-flow loss is off"):
+    with pytest.raises(ConfigError, match="--flow.tracks has no effect: --flow.weight is 0, so the optical-flow"):
         resolve_config(["--data", str(older), "--preset", "tiny", "--flow.weight", "0", "--flow.tracks"])
+    at_half = ["--data", str(older), "--preset", "tiny", "--downscale", "2", "--flow.tracks"]  # its flow is at 1x
+    with pytest.raises(ConfigError, match=re.escape("no optical flow at the training scale (liquidgs data flow)")):
+        resolve_config(at_half)
 
 
 def test_dnerf_and_a_capture_without_flow_at_its_scale_keep_their_identity(flow_capture, puppet_scene, tmp_path):

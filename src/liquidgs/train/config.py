@@ -386,7 +386,7 @@ def check_given_settings(cfg: TrainConfig, given: typing.Iterable[str]) -> None:
     was given is refused: presets and specs set options for every field of a grid, and config.yml
     keeps what it holds (its identity, and so its folder, unchanged)."""
     data_format = known_format(cfg.data)
-    split_left_to_scene = cfg.split.apply is None
+    split_left_to_scene, flow_left_to_scene = cfg.split.apply is None, cfg.flow.weight is None
     cfg = with_motion_evidence(cfg)
     read = options_read(cfg.field)
     for key in given:
@@ -406,7 +406,9 @@ def check_given_settings(cfg: TrainConfig, given: typing.Iterable[str]) -> None:
                 why = f"--motion.apply auto is off for {data_format} data (on for captures)"
             raise ConfigError(f"--motion.{name.replace('_', '-')} has no effect: {why}, so no motion term is trained")
         if key == "flow.tracks" and not cfg.flow.weight:
-            raise ConfigError("--flow.tracks has no effect: the optical-flow loss is off (flow.weight 0, or no flow)")
+            why = ("the scene has no optical flow at the training scale (liquidgs data flow)" if flow_left_to_scene
+                   else "--flow.weight is 0")  # fmt: skip
+            raise ConfigError(f"--flow.tracks has no effect: {why}, so the optical-flow loss is off")
         if group == "split" and name != "apply" and not split_applies(cfg.split, cfg.field):
             if cfg.field == "static":
                 why = "the static field does not move Gaussians"
