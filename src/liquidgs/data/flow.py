@@ -120,6 +120,11 @@ def _pixel_grid(height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
     return np.meshgrid(np.arange(width, dtype=np.float32), np.arange(height, dtype=np.float32))
 
 
+def _inside(x: np.ndarray, y: np.ndarray, width: int, height: int) -> np.ndarray:
+    """Where pixel positions (x, y) lie inside a width x height image (pixel centres 0 .. size - 1)."""
+    return (x >= 0) & (x <= width - 1) & (y >= 0) & (y <= height - 1)
+
+
 def consistent(forward: np.ndarray, backward: np.ndarray) -> np.ndarray:
     """Where forward flow and the backward flow at its end cancel (Sundaram et al.'s test:
     |f + b|^2 < 0.01 (|f|^2 + |b|^2) + 0.5) and the end lies inside the image: bool [H, W]."""
@@ -130,8 +135,7 @@ def consistent(forward: np.ndarray, backward: np.ndarray) -> np.ndarray:
     back = cv2.remap(backward, x, y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     total = forward + back
     bound = 0.01 * ((forward**2).sum(-1) + (back**2).sum(-1)) + 0.5
-    inside = (x >= 0) & (x <= width - 1) & (y >= 0) & (y <= height - 1)
-    return ((total**2).sum(-1) < bound) & inside & np.isfinite(total).all(-1)
+    return ((total**2).sum(-1) < bound) & _inside(x, y, width, height) & np.isfinite(total).all(-1)
 
 
 def chain_flow(flows: list[np.ndarray], valid: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
@@ -145,13 +149,12 @@ def chain_flow(flows: list[np.ndarray], valid: list[np.ndarray]) -> tuple[np.nda
     x, y = gx.copy(), gy.copy()
     kept = np.ones((height, width), dtype=bool)
     for flow, link_valid in zip(flows, valid, strict=True):
-        inside = (x >= 0) & (x <= width - 1) & (y >= 0) & (y <= height - 1)
         reached = cv2.remap(link_valid.astype(np.uint8), x, y, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT)
-        kept &= inside & (reached > 0)
+        kept &= _inside(x, y, width, height) & (reached > 0)
         step = cv2.remap(np.ascontiguousarray(flow, dtype=np.float32), x, y, cv2.INTER_LINEAR,
                          borderMode=cv2.BORDER_REPLICATE)  # fmt: skip
         x, y = x + step[..., 0], y + step[..., 1]
-    kept &= (x >= 0) & (x <= width - 1) & (y >= 0) & (y <= height - 1)
+    kept &= _inside(x, y, width, height)
     return np.stack([x - gx, y - gy], axis=-1), kept
 
 
@@ -626,10 +629,10 @@ def read_flow_pairs(scene: Path, factor: int, tracks: bool = False) -> list[Flow
     folder = checked_flow_folder(scene, factor, "optical flow")
     record = json.loads((folder / FLOW_FILE).read_text())
     pairs = []
-    for names, track in [*((p, False) for p in record["pairs"]), *((p, True) for p in record.get("tracks", []))]:
-        if track and not tracks:
-            continue
-        first, second = names
+    wanted = [(names, False) for names in record["pairs"]]
+    if tracks:
+        wanted += [(names, True) for names in record.get("tracks", [])]
+    for (first, second), track in wanted:
         with np.load(folder / PAIRS_FOLDER / f"{first}--{second}.npz") as data:
             flows = [data[key].astype(np.float32) for key in ("forward", "backward")]
             consistency = data["forward_consistent"], data["backward_consistent"]
