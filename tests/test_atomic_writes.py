@@ -114,6 +114,7 @@ def test_a_full_disk_in_the_web_export_leaves_no_folder(tiny_mlp_run, tmp_path, 
     assert [p for p in tmp_path.rglob("*") if not p.is_dir()] == [] and hidden(tmp_path) == []
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "code, reason", [(errno.EROFS, "read-only file system at"), (errno.EACCES, "no permission to write in")]
 )

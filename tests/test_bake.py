@@ -412,6 +412,7 @@ def splatv_records(data: bytes) -> int:
     return int((words[:, 15] >> 16 != 0).sum())
 
 
+@pytest.mark.slow
 def test_splatv_budget_flags_reach_the_fit(baked, tmp_path):
     """--splatv-tolerance and --splatv-pieces are the fit's budget: a tighter one writes the records
     the fit gives for it, more than the default's."""

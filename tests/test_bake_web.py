@@ -125,6 +125,7 @@ def test_a_still_gaussian_costs_one_keyframe_in_the_web_file(web):
     assert (web / "scene.bin").stat().st_size == meta["gaussians"] * fixed + codes.sum()
 
 
+@pytest.mark.slow
 def test_web_export_of_a_run_is_its_bake(tiny_mlp_run, tmp_path):
     """A run given to the web export is baked on the way as `bake` would (its default budget, the
     pixel floor of the scene's cameras): the same scene.bin."""

@@ -173,6 +173,7 @@ def test_refinement_is_on_for_captures_only_and_off_leaves_the_identity_as_it_wa
 REFINE_RUN = tiny_flags({"iterations": 30, "checkpoint_every": 10, "eval.start": 30, "cameras.align_steps": 5})
 
 
+@pytest.mark.slow
 def test_a_refining_run_resumes_bit_exactly_and_writes_its_corrections(capture, tmp_path, monkeypatch):
     flags = ["--data", str(capture / "nerfies"), "--field", "mlp", *REFINE_RUN]
     whole = run_train([*flags, "--out", str(tmp_path / "whole")])

@@ -110,6 +110,7 @@ def test_bench_raster_prints_one_json_object_per_case(capsys, backend):
         assert row["forward_ms"] > 0 and row["backward_ms"] > 0 and row["peak_memory_mb"] >= 0
 
 
+@pytest.mark.slow
 def test_bench_train_times_every_phase_of_real_steps(capsys, tmp_path):
     output = tmp_path / "bench.jsonl"
     args = ["bench", "train", "--json", "--size", "32", "--from-step", "120", "--steps", "4", "--output", str(output)]

@@ -104,6 +104,7 @@ def box_blur(image: np.ndarray) -> np.ndarray:
     return sum(padded[i : i + height, j : j + width] for i in range(3) for j in range(3)) / 9.0
 
 
+@pytest.mark.slow
 def test_the_cameras_become_pinhole_and_the_images_match_a_pinhole_render(distorted, undistorted):
     out, stdout = undistorted
     assert "undistortion (rgb/1x): FULL_OPENCV 160x120" in stdout and "-> PINHOLE" in stdout

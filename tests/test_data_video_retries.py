@@ -44,6 +44,7 @@ def ends_only(tmp_path_factory):
     return images, poses
 
 
+@pytest.mark.slow
 def test_a_clip_whose_ends_only_meet_in_exhaustive_matching_is_solved_by_the_second_attempt(ends_only, tmp_path):
     images, poses = ends_only
     out = tmp_path / "scene"

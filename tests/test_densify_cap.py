@@ -4,6 +4,7 @@ that `liquidgs data video` prints with it."""
 import json
 from pathlib import Path
 
+import pytest
 import torch
 
 from liquidgs.commands.data import quick_look_commands
@@ -72,6 +73,7 @@ def test_without_the_cap_every_candidate_grows():
     assert report["cloned"] == 3 and report["split"] == 3 and params["means"].shape[0] == 12
 
 
+@pytest.mark.slow
 def test_a_capped_training_stays_under_the_cap_where_the_uncapped_one_passes_it(tmp_path, one_torch_thread):
     """The built-in puppet at 32x32 (1,024 pixels), 300 tiny iterations from 2,000 random points:
     uncapped, densification grows past 1 per pixel; with --densify.max-per-pixel 1 it never does."""

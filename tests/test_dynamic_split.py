@@ -111,6 +111,7 @@ def test_the_field_never_moves_a_static_gaussian_and_sees_only_the_dynamic_ones(
     assert set(seen) == {results.dynamic_gaussians}
 
 
+@pytest.mark.slow
 def test_a_split_run_resumes_bit_exactly_labels_included(flow_capture, tmp_path, monkeypatch):
     flags = ["--data", str(flow_capture), "--field", "mlp", *SPLIT_RUN]
     run_train([*flags, "--out", str(tmp_path / "whole")])
@@ -166,6 +167,7 @@ def test_the_viewer_draws_static_gaussians_blue_and_dynamic_ones_orange(flow_cap
     assert (nearest == 0).sum() > 20 and (nearest == 1).sum() > 20  # both sets on screen
 
 
+@pytest.mark.slow
 def test_a_run_that_trains_from_the_flow_is_refused_once_the_flow_is_computed_otherwise(flow_capture, tmp_path):
     scene = Path(shutil.copytree(flow_capture, tmp_path / "scene"))
     out = tmp_path / "run"

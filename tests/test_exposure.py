@@ -136,6 +136,7 @@ def test_a_run_on_flickering_frames_learns_each_frame_s_exposure(tmp_path):
     assert "gain and offset" in results.final_aligned["cameras"]  # test views: their exposure fitted too
 
 
+@pytest.mark.slow
 def test_a_capture_run_holds_sizes_resumes_bit_exactly_and_writes_its_exposure(capture, tmp_path, monkeypatch):
     flags = ["--data", str(capture / "nerfies"), "--field", "mlp",
              *tiny_flags({"iterations": 30, "cameras.align_steps": 5, "exposure.lr": 0.01})]  # fmt: skip

@@ -82,6 +82,7 @@ def test_field_verdict_fails_beyond_the_margin_or_on_a_missing_run():
     assert not missing["passed"] and missing["line"] == "hexplane: FAIL - the CPU run did not finish"
 
 
+@pytest.mark.slow
 def test_a_stage_killed_at_its_limit_keeps_the_records_before_it_and_the_summary_names_it(tmp_path):
     args = Namespace(out=tmp_path, budget_s=60, scene=Path("s"), work=tmp_path / "w", size=800, build_dir=tmp_path)
     run = acc.Acceptance(args)

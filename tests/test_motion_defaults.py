@@ -113,6 +113,7 @@ def test_config_yml_records_the_decision(flow_capture, tmp_path):
     assert stored.flow.weight == DEFAULT_WEIGHT and stored.split.apply is True and stored.flow.tracks is False
 
 
+@pytest.mark.slow
 def test_a_run_made_before_the_defaults_resumes_as_it_was_trained(flow_capture, tmp_path, monkeypatch):
     """Its config.yml without `flow` and `split` (written before they existed): it resumes without
     either, on a scene that now has flow, to the last bit of the same run trained whole."""

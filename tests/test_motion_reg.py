@@ -123,6 +123,7 @@ def test_the_stillness_term_holds_the_mlp_still_on_a_capture_where_nothing_moves
     assert free > 0 and held < 0.5 * free, (held, free)
 
 
+@pytest.mark.slow
 def test_a_run_made_before_the_stillness_term_resumes_without_it(tmp_path, monkeypatch):
     """Its config.yml's motion has no stillness: it resumes as trained, to the same Gaussians as a run
     without the term from the start."""

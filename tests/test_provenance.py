@@ -222,6 +222,7 @@ def test_a_hand_damaged_baked_folder_is_one_line(tiny_mlp_run, tmp_path, capsys,
 
 
 # ----------------------------------------------------------------------------- exports
+@pytest.mark.slow
 def test_every_export_records_its_source(tiny_mlp_run, tmp_path):
     out = tmp_path / "export"
     assert cli(["export", "--run", str(tiny_mlp_run), "--out", str(out), "--time", "0.5", "--sequence", "3"]) == 0

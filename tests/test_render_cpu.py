@@ -231,6 +231,7 @@ def test_the_kernel_is_built_once_into_the_cache(tmp_path):
     assert not [p for p in cache.iterdir() if p not in built], "no temporary left behind"
 
 
+@pytest.mark.slow
 def test_the_kernel_takes_its_constants_from_the_torch_backend(monkeypatch, tmp_path):
     """The kernel holds no copy of the blend's constants: built with other values for them (as a
     change of composite.py / projection.py would give it), it follows the torch backend there."""

@@ -51,6 +51,7 @@ def _one_thread(one_torch_thread):
 
 
 # ----------------------------------------------------------------- 1. one writer
+@pytest.mark.slow
 def test_a_second_writer_is_refused_with_the_folder_and_the_pid(scene, tmp_path, capsys):
     out = tmp_path / "run"
     holder = subprocess.Popen(
@@ -327,6 +328,7 @@ def test_a_results_file_that_does_not_fit_its_format_is_one_error_naming_it(tmp_
         read_results(tmp_path)
 
 
+@pytest.mark.slow
 def test_readers_do_not_import_the_training_loop():
     readers = [
         "liquidgs.commands.evaluate", "liquidgs.commands.render", "liquidgs.commands.export",

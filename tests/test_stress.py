@@ -483,6 +483,7 @@ def verdict_column(text: str) -> list[tuple[str, str, str]]:
     return [(v, s, verdict.strip()) for v, s, verdict in rows]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("scenes", "seeds"), [(("hook", "lego"), tuple(range(8))), (("hook", "lego"), (0, 1))],
                          ids=["16-clusters", "4-clusters"])  # fmt: skip
 def test_verdicts_survive_a_change_of_machine(tmp_path, scenes, seeds):

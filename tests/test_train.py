@@ -144,6 +144,7 @@ def test_opacity_reset_that_drops_psnr_by_more_than_10_db_is_not_a_divergence(gl
     assert results.final["iteration"] == 260
 
 
+@pytest.mark.slow
 def test_field_learning_rate_100x_too_high_is_still_caught(globe_scene, tmp_path, capsys):
     """The field switches on at 150 (itself a scheduled disturbance) and wrecks the scene at once:
     stopped within about 100 iterations, once the recovery window of the end of warm-up is over."""

@@ -216,6 +216,7 @@ def test_uncertainty_is_the_estimate_render_writes(run_dir, tmp_path):
     assert image.shape == (frame.camera.height, frame.camera.width, 3)
 
 
+@pytest.mark.slow
 def test_command_binds_to_localhost_and_ctrl_c_stops_it(run_dir):
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(REPO / "src"), os.environ.get("PYTHONPATH")]))}
     process = subprocess.Popen(
