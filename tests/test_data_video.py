@@ -27,7 +27,7 @@ from PIL import Image
 from liquidgs.data import DataConfig, check_dataset, load_dataset
 from liquidgs.data.capture import CaptureSettings, capture_scene
 from liquidgs.data.colmap import SolveOptions
-from liquidgs.data.flow import chain_flow
+from liquidgs.data.optical_flow import chain_flow
 from liquidgs.data.pose_accuracy import scene_poses, score_poses, similarity
 from liquidgs.data.synthetic import render_rgba
 from liquidgs.data.video import extract_video_frames
@@ -259,7 +259,7 @@ def test_mask_dynamic_keeps_every_feature_off_the_moving_figure(image_scene, old
 
 
 def test_flow_masks_keep_some_features_off_the_moving_figure(flow_masked_scene, old_pipeline_scene, handheld):
-    """No masks given: the two-view motion masks of data.flow keep COLMAP's features off some of the ball.
+    """No masks given: the two-view motion masks of data.motion_masks keep COLMAP's features off some of the ball.
     Measured (one thread): 1392 keypoints on it with the masks, 1727 without (-19%): like the scene's
     masks (test_the_scene_has_flow_and_motion_masks_that_find_the_ball) they miss the ball where it
     rolls the way the camera slides, along the epipolar lines."""

@@ -1,4 +1,4 @@
-"""Optical flow and motion masks (data.flow): what the cameras' motion explains and what it does not."""
+"""Optical flow, motion masks and the scene folder's flow (data.optical_flow, data.motion_masks, data.flow)."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ import pytest
 import torch
 
 from liquidgs.cameras import Camera
-from liquidgs.data import flow
+from liquidgs.data import flow, motion_masks, optical_flow
 from shared_data import require_module
 
 WIDTH, HEIGHT, FOCAL, DEPTH = 96, 64, 80.0, 4.0
@@ -56,11 +56,11 @@ def still_flow(a: Camera, b: Camera) -> np.ndarray:
 def test_a_still_pixel_is_explained_by_the_cameras_and_a_moving_one_is_not(move, what):
     a, b = camera(np.eye(3), np.zeros(3)), camera(*move)
     motion = still_flow(a, b)
-    error = flow.camera_motion_error(motion, a, b, DEPTH)
+    error = motion_masks.camera_motion_error(motion, a, b, DEPTH)
     assert error.max() < 0.01, what
     moved = motion.copy()
     moved[20:40, 30:60] += np.array([0.4, 2.0], np.float32)  # off the epipolar line (nearly vertical to it)
-    error = flow.camera_motion_error(moved, a, b, DEPTH)
+    error = motion_masks.camera_motion_error(moved, a, b, DEPTH)
     assert error[20:40, 30:60].min() > 1.0 and np.delete(error, np.s_[20:40], axis=0).max() < 0.01, what
 
 
@@ -77,16 +77,16 @@ def textured_image(shift: float = 0.0) -> np.ndarray:
 
 def test_flow_of_a_shifted_image_is_the_shift_and_consistent_both_ways():
     a, b = textured_image(), textured_image(shift=8.0)  # 2 px at the image's size
-    forward, backward = flow.optical_flow(a, b), flow.optical_flow(b, a)
+    forward, backward = optical_flow.optical_flow(a, b), optical_flow.optical_flow(b, a)
     inner = np.s_[8:-8, 8:-8]
     assert np.median(forward[inner][..., 0]) == pytest.approx(2.0, abs=0.2)
     assert np.abs(np.median(forward[inner][..., 1])) < 0.1
-    ok = flow.consistent(forward, backward)
+    ok = optical_flow.consistent(forward, backward)
     assert ok[inner].mean() > 0.95
     assert not ok[:, -1].any()  # the last column lands outside the image
     broken = backward.copy()
     broken[10:30, 10:30] = np.array([3.0, -3.0], np.float32)  # the way back disagrees there
-    assert flow.consistent(forward, broken)[12:28, 12:26].mean() < 0.05
+    assert optical_flow.consistent(forward, broken)[12:28, 12:26].mean() < 0.05
 
 
 def test_chained_flow_follows_each_link_from_where_the_last_one_ended():
@@ -99,7 +99,7 @@ def test_chained_flow_follows_each_link_from_where_the_last_one_ended():
     right = np.stack([np.ones_like(gx), np.zeros_like(gx)], axis=-1)
     valid = [np.ones((HEIGHT, WIDTH), bool) for _ in range(3)]
     valid[1][20:30, 40:50] = False  # where the shear's flow cannot be trusted
-    chained, kept = flow.chain_flow([down, shear, right], valid)
+    chained, kept = optical_flow.chain_flow([down, shear, right], valid)
     inside = np.s_[:-2]  # the rows whose chain stays in the image
     assert np.allclose(chained[inside][..., 0], (gy[inside] + 2) / 8 + 1) and np.allclose(chained[..., 1], 2.0)
     assert not kept[18:28, 40:50].any() and kept[28:30, 40:50].all()  # cut where the chain reached the hole
@@ -113,10 +113,10 @@ def test_a_mask_keeps_a_moving_region_and_drops_speckle_and_untextured_pixels():
     error[50, 80] = error[5, 70] = 5.0  # speckle
     valid = np.ones_like(error, bool)
     textured = np.ones_like(valid)
-    mask = flow.motion_mask([(error, valid)], textured)
+    mask = motion_masks.motion_mask([(error, valid)], textured)
     assert mask[12:28, 12:28].all() and not mask[50, 80] and not mask[5, 70] and mask.sum() < 30 * 30
-    assert not flow.motion_mask([(error, valid)], np.zeros_like(valid)).any()  # a blank wall is no evidence
-    assert not flow.motion_mask([(error, np.zeros_like(valid))], textured).any()  # nor inconsistent flow
+    assert not motion_masks.motion_mask([(error, valid)], np.zeros_like(valid)).any()  # a blank wall is no evidence
+    assert not motion_masks.motion_mask([(error, np.zeros_like(valid))], textured).any()  # nor inconsistent flow
 
 
 def test_a_broken_track_is_one_line_naming_its_file(flow_capture, tmp_path):

@@ -15,7 +15,8 @@ from liquidgs.commands.progress import StageLog
 from liquidgs.data import DataConfig, check_dataset, generate_synthetic
 from liquidgs.data.capture import training_downscale
 from liquidgs.data.colmap import DEADLINE_SECONDS, MapperKind, Matcher, SolveOptions, import_pycolmap
-from liquidgs.data.flow import TRACK_STEP, check_scene_flow, compute_scene_flow, import_cv2, scene_image_size
+from liquidgs.data.flow import TRACK_STEP, check_scene_flow, compute_scene_flow, scene_image_size
+from liquidgs.data.optical_flow import import_cv2
 from liquidgs.data.scene import Background, DataFormat, Split
 from liquidgs.errors import ConfigError
 from liquidgs.settings import parse_flags

@@ -29,7 +29,8 @@ from liquidgs.data.colmap import (
     solve_cameras,
     undistorters,
 )
-from liquidgs.data.flow import compute_scene_flow, two_view_motion_masks
+from liquidgs.data.flow import compute_scene_flow
+from liquidgs.data.motion_masks import two_view_motion_masks
 from liquidgs.data.nerfies import (
     CAMERA_FOLDER,
     DATASET_FILE,
@@ -76,7 +77,7 @@ class CaptureSettings:
     flow: bool = True
     """Optical flow and motion masks (data.flow) at the training scale (training_downscale)."""
     mask_moving: bool = False
-    """Without mask_dir: no features where data.flow's two-view motion masks see motion."""
+    """Without mask_dir: no features where the two-view motion masks (data.motion_masks) see motion."""
 
 
 TRAINING_SIDE = 128
