@@ -13,6 +13,7 @@ import torch
 
 from liquidgs.cameras import Camera
 from liquidgs.data import flow, motion_masks, optical_flow
+from liquidgs.errors import LiquidGSError
 from shared_data import require_module
 
 WIDTH, HEIGHT, FOCAL, DEPTH = 96, 64, 80.0, 4.0
@@ -130,3 +131,8 @@ def test_a_broken_track_is_one_line_naming_its_file(flow_capture, tmp_path):
     assert len(problems) == 1 and problems[0].startswith(f"{track}: unreadable flow")
     (folder / "flow.json").write_text(json.dumps({**record, "tracks": "all of them"}))
     assert flow.check_flow(scene, 1) == [f"{folder / 'flow.json'}: field 'tracks': not a list of pairs"]
+    (folder / "flow.json").write_text(json.dumps({key: value for key, value in record.items() if key != "track_step"}))
+    no_step = f"{folder / 'flow.json'}: field 'track_step': not the number of pairs each track chains"
+    assert flow.check_flow(scene, 1) == [no_step]
+    with pytest.raises(LiquidGSError, match="field 'track_step'"):  # data check: one line, not a KeyError
+        flow.check_scene_flow(scene)

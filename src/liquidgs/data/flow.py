@@ -290,6 +290,9 @@ def check_flow(scene: Path, factor: int) -> list[str]:
     tracks = record.get("tracks", [])
     if not isinstance(tracks, list):
         return [f"{path}: field 'tracks': not a list of pairs"]
+    step = record.get("track_step")
+    if "tracks" in record and not (isinstance(step, int) and not isinstance(step, bool) and step >= 1):
+        return [f"{path}: field 'track_step': not the number of pairs each track chains"]
     width, height = size
     for pair in [*pairs, *tracks]:
         file = folder / PAIRS_FOLDER / f"{pair[0]}--{pair[1]}.npz"
