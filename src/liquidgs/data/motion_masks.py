@@ -66,26 +66,36 @@ def median_depth(camera: Camera, points: np.ndarray | None) -> float | None:
 def camera_motion_error(flow: np.ndarray, cam_a: Camera, cam_b: Camera, depth: float | None) -> np.ndarray:
     """How far, in pixels of b, each pixel's flow from a to b lands from where the cameras' motion
     allows a still point to land: float32 [H, W] (see the module's docstring)."""
-    height, width = flow.shape[:2]
     rot_a, t_a = _rotation_translation(cam_a)
     rot_b, t_b = _rotation_translation(cam_b)
     rotation = rot_b @ rot_a.T  # a's camera frame -> b's
     translation = t_b - rotation @ t_a
     k_a, k_b = cam_a.K.double().numpy(), cam_b.K.double().numpy()
-    gx, gy = pixel_grid(height, width)
-    x_a = np.stack([gx + 0.5, gy + 0.5, np.ones_like(gx)], axis=-1).astype(np.float64)  # pixel centres
-    x_b = x_a.copy()
-    x_b[..., :2] += flow
+    x_a, x_b = flow_ends(flow)
     baseline = float(np.linalg.norm(translation))
     parallax = np.inf if depth is None else float(k_b[0, 0]) * baseline / depth
     if baseline == 0.0 or parallax < PARALLAX_PX:  # a turn: the infinite homography moves still points
-        predicted = x_a @ (k_b @ rotation @ np.linalg.inv(k_a)).T
-        predicted = predicted[..., :2] / predicted[..., 2:3]
-        return np.linalg.norm(x_b[..., :2] - predicted, axis=-1).astype(np.float32)
+        return homography_distance(x_a, x_b, k_b @ rotation @ np.linalg.inv(k_a))
     skew = np.array([[0.0, -translation[2], translation[1]], [translation[2], 0.0, -translation[0]],
                      [-translation[1], translation[0], 0.0]])  # fmt: skip
     fundamental = np.linalg.inv(k_b).T @ skew @ rotation @ np.linalg.inv(k_a)
     return sampson_distance(x_a, x_b, fundamental)
+
+
+def flow_ends(flow: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Homogeneous pixel centres x_a [H, W, 3] (float64) and where the flow from a takes them, x_b."""
+    gx, gy = pixel_grid(*flow.shape[:2])
+    x_a = np.stack([gx + 0.5, gy + 0.5, np.ones_like(gx)], axis=-1).astype(np.float64)
+    x_b = x_a.copy()
+    x_b[..., :2] += flow
+    return x_a, x_b
+
+
+def homography_distance(x_a: np.ndarray, x_b: np.ndarray, homography: np.ndarray) -> np.ndarray:
+    """How far (pixels) each x_b lands from where `homography` puts its x_a: float32 [...]."""
+    predicted = x_a @ homography.T
+    predicted = predicted[..., :2] / predicted[..., 2:3]
+    return np.linalg.norm(x_b[..., :2] - predicted, axis=-1).astype(np.float32)
 
 
 def sampson_distance(x_a: np.ndarray, x_b: np.ndarray, fundamental: np.ndarray) -> np.ndarray:
@@ -105,11 +115,7 @@ def two_view_error(flow: np.ndarray, valid: np.ndarray) -> np.ndarray | None:
     MOTION_THRESHOLD_PX) to the `valid` flow every GEOMETRY_SAMPLE_STEP pixels. float32 [H, W], or
     None when too few valid flow vectors are left to fit either."""
     cv2 = import_cv2()
-    height, width = flow.shape[:2]
-    gx, gy = pixel_grid(height, width)
-    x_a = np.stack([gx + 0.5, gy + 0.5, np.ones_like(gx)], axis=-1).astype(np.float64)
-    x_b = x_a.copy()
-    x_b[..., :2] += flow
+    x_a, x_b = flow_ends(flow)
     sample = np.zeros_like(valid)
     sample[::GEOMETRY_SAMPLE_STEP, ::GEOMETRY_SAMPLE_STEP] = True
     sample &= valid
@@ -118,9 +124,7 @@ def two_view_error(flow: np.ndarray, valid: np.ndarray) -> np.ndarray | None:
     from_a, to_b = x_a[sample][:, :2], x_b[sample][:, :2]
     homography, inliers = cv2.findHomography(from_a, to_b, cv2.RANSAC, MOTION_THRESHOLD_PX)
     if homography is not None and inliers.mean() >= HOMOGRAPHY_SHARE:
-        predicted = x_a @ homography.T
-        predicted = predicted[..., :2] / predicted[..., 2:3]
-        return np.linalg.norm(x_b[..., :2] - predicted, axis=-1).astype(np.float32)
+        return homography_distance(x_a, x_b, homography)
     fundamental, _ = cv2.findFundamentalMat(from_a, to_b, cv2.FM_RANSAC, MOTION_THRESHOLD_PX, 0.999)
     if fundamental is None or fundamental.shape != (3, 3):
         return None
