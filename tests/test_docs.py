@@ -317,6 +317,17 @@ def test_every_flag_of_every_command_says_what_it_does():
     assert not empty, empty
 
 
+def test_the_help_states_the_track_step_the_code_uses():
+    """`data flow` and `--flow.tracks` say how many pairs a track chains; TRACK_STEP owns the number."""
+    from liquidgs.data.flow import TRACK_STEP
+
+    words = {2: "two", 3: "three", 4: "four", 5: "five", 6: "six"}
+    reference = GENERATED["reference/cli.md"]
+    stated = re.findall(r"chained over (\w+) pairs", reference)
+    assert len(stated) == 2, stated
+    assert set(stated) <= {str(TRACK_STEP), words.get(TRACK_STEP)}, (stated, TRACK_STEP)
+
+
 # An absolute path of the machine a page or report was written on (/tmp/..., /work/..., /root/...,
 # /home/...): meaningless to a reader elsewhere. After a space, a bracket, a quote, a backtick, `=` or `:`.
 MACHINE_PATH = re.compile(r"(?<![^\s(`'\"=:,])/(?:tmp|work|root|home)/")

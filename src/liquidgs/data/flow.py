@@ -32,9 +32,11 @@ scene leaves the runs trained on it valid); flow.json's own hashes say when it i
 
 from __future__ import annotations
 
+import functools
 import json
 import time
 import warnings
+from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -183,11 +185,17 @@ def compute_scene_flow(scene: Path, downscale: int | None, log: Log | None = Non
     width, height = sizes.pop()
     points = dataset.points.double().numpy() if dataset.points is not None else None
     out = flow_folder(scene, factor)
-    flows: dict[tuple[str, str], np.ndarray] = {}
+    neighbours = {frame.name: _neighbours(frame, train) for frame in everything}
+    uses = Counter(frozenset((name, other.name)) for name, others in neighbours.items() for other in others)
+    flows: dict[tuple[str, str], np.ndarray] = {}  # a train frame and its neighbour share a pair's flow
+
+    @functools.lru_cache(maxsize=2 * FRAME_STEP + 2)  # the frames a mask compares, decoded once
+    def image_of(frame: Frame) -> np.ndarray:
+        return frame.image_uint8()
 
     def flow_of(a: Frame, b: Frame) -> np.ndarray:
         if (a.name, b.name) not in flows:
-            flows[(a.name, b.name)] = optical_flow(a.image_uint8(), b.image_uint8())
+            flows[(a.name, b.name)] = optical_flow(image_of(a), image_of(b))
         return flows[(a.name, b.name)]
 
     pairs = list(zip(train[:-1], train[1:], strict=True))
@@ -198,7 +206,7 @@ def compute_scene_flow(scene: Path, downscale: int | None, log: Log | None = Non
         (building / MASKS_FOLDER).mkdir()
         links = []  # the last TRACK_STEP pairs' arrays, float32 flow
         for i, (a, b) in enumerate(pairs):
-            image_a, image_b = a.image_uint8(), b.image_uint8()
+            image_a, image_b = image_of(a), image_of(b)
             forward, backward = optical_flow(image_a, image_b), optical_flow(image_b, image_a)
             arrays = _pair_arrays(forward, backward)
             np.savez_compressed(building / PAIRS_FOLDER / f"{a.name}--{b.name}.npz", **arrays)
@@ -213,19 +221,20 @@ def compute_scene_flow(scene: Path, downscale: int | None, log: Log | None = Non
                 log(f"flow: {i + 1}/{len(pairs)} pairs of train frames and the tracks ending there")
         shares = []
         for i, frame in enumerate(everything):
-            neighbours = _neighbours(frame, train)
             depth = median_depth(frame.camera, points)
             errors = []
-            for other in neighbours:
+            for other in neighbours[frame.name]:
                 forward, backward = flow_of(frame, other), flow_of(other, frame)
                 error = camera_motion_error(forward, frame.camera, other.camera, depth)
                 errors.append((error, consistent(forward, backward)))
-            mask = motion_mask(errors, textured(frame.image_uint8()))
+            mask = motion_mask(errors, textured(image_of(frame)))
             shares.append(float(mask.mean()))
             _write_png(building / MASKS_FOLDER / f"{frame.name}.png", mask)
-            for other in neighbours:  # a mask's flow is not kept (the pairs' flow is written already)
-                flows.pop((frame.name, other.name), None)
-                flows.pop((other.name, frame.name), None)
+            for other in neighbours[frame.name]:  # kept until the other end's mask has used it too
+                uses[frozenset((frame.name, other.name))] -= 1
+                if not uses[frozenset((frame.name, other.name))]:
+                    flows.pop((frame.name, other.name), None)
+                    flows.pop((other.name, frame.name), None)
             if (i + 1) % 10 == 0 or i + 1 == len(everything):
                 log(f"flow: {i + 1}/{len(everything)} motion masks")
         record = {

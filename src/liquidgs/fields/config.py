@@ -18,7 +18,7 @@ from typing import Any, Literal
 
 from liquidgs.errors import ConfigError, check_integer, check_number
 from liquidgs.fields.presets import FAMILY_SIZES, PRESET_NAMES, PRESETS
-from liquidgs.fields.registry import field_type, install_options_check
+from liquidgs.fields.registry import field_names, field_type, install_options_check
 
 PresetName = Literal[PRESET_NAMES]  # type: ignore[valid-type]
 ACTIVATIONS = ("silu", "relu", "tanh", "gelu", "lecun_tanh")
@@ -312,8 +312,6 @@ def field_options_class(name: str) -> type[FieldOptions]:
 
 def own_option_flags() -> dict[str, list]:
     """Every registered field's own options: {setting name: [(field, type hint), ...]}."""
-    from liquidgs.fields.registry import field_names
-
     found: dict[str, list] = {}
     for name in field_names():
         own_class = field_type(name).options
