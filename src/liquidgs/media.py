@@ -37,6 +37,18 @@ def labelled(image: np.ndarray, text: str) -> np.ndarray:
     return np.asarray(canvas)
 
 
+FRAME_PNG_LEVEL = 1
+"""The zlib level of the frames a scene is made of (`data video` / `data images`, undistortion): PIL's
+default, 6, takes 4x the time for 12% fewer bytes (a 368x484 frame of the cat clip: 34.5 against
+8.6 ms, 161 against 184 KiB), and reading either back takes the same 3.5-3.8 ms."""
+
+
+def save_frame_png(image: Image.Image | np.ndarray, path: Path) -> None:
+    """A frame of a scene, as PNG at FRAME_PNG_LEVEL (not atomic: the scene folder is built whole)."""
+    image = Image.fromarray(image) if isinstance(image, np.ndarray) else image
+    image.save(path, format="PNG", compress_level=FRAME_PNG_LEVEL)
+
+
 def write_png(path: str | Path, image: torch.Tensor | np.ndarray) -> Path:
     array = image if isinstance(image, np.ndarray) else to_uint8(image)
     return write_atomic(path, lambda tmp: Image.fromarray(array).save(tmp, format="PNG"))

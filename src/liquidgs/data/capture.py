@@ -53,6 +53,7 @@ from liquidgs.data.video import (
     extract_video_frames,
 )
 from liquidgs.errors import ConfigError, DataError
+from liquidgs.media import save_frame_png
 
 CAPTURE_FILE = "capture.json"  # how the scene was made: source, registered and dropped frames, errors
 # COLMAP's model the cameras come from (every keypoint, track and camera), for COLMAP's own tools.
@@ -304,9 +305,9 @@ def _write_files(scene, frames, frames_dir, model, settings, log, times: StageTi
             else:
                 full = decoded
             for factor in SCALES[1:]:
-                full.reduce(factor).save(rgb_folder(scene, factor) / source.name, format="PNG")
+                save_frame_png(full.reduce(factor), rgb_folder(scene, factor) / source.name)
             if undistorter:
-                full.save(rgb_folder(scene, 1) / source.name, format="PNG")
+                save_frame_png(full, rgb_folder(scene, 1) / source.name)
         if not undistorter:
             os.replace(source, rgb_folder(scene, 1) / source.name)
 

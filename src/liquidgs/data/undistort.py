@@ -45,6 +45,7 @@ from liquidgs.data.nerfies import (
 from liquidgs.data.scene import DataConfig
 from liquidgs.data.validate import decode_image, probe_image, read_json
 from liquidgs.errors import DataError
+from liquidgs.media import save_frame_png
 
 # What the new scene holds besides camera/ and rgb/. Anything else (capture.json, colmap/, masks,
 # depth maps) describes the distorted images or is not part of the layout, and is left out.
@@ -114,9 +115,8 @@ def undistort_scene(scene: Path, out: Path, log: Log) -> UndistortSummary:
             )
             pixels = undistorter.image(_opaque_or_rgba(decode_image(rgb_folder(scene, finest) / f"{image_id}.png")))
             for factor in folders:
-                Image.fromarray(_area_average(pixels, factor // finest)).save(
-                    rgb_folder(building, factor) / f"{image_id}.png", format="PNG"
-                )
+                scaled = _area_average(pixels, factor // finest)
+                save_frame_png(scaled, rgb_folder(building, factor) / f"{image_id}.png")
             if count % 25 == 0:
                 log(f"undistortion: {count}/{len(ids)} frames")
 

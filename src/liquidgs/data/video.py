@@ -20,6 +20,7 @@ from PIL import Image
 from liquidgs.data.colmap import MIN_REGISTERED_FRAMES
 from liquidgs.data.validate import open_image
 from liquidgs.errors import ConfigError, DataError
+from liquidgs.media import save_frame_png
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 SIDE_MULTIPLE = 4  # the coarsest rgb/<k>x folder written
@@ -112,7 +113,7 @@ def extract_video_frames(
                 mask_name=f"{number:06d}.png",
                 scaled_size=(width, height),
             )
-            Image.fromarray(crop_to_multiple(image)).save(out_dir / f"{frame.id}.png", format="PNG")
+            save_frame_png(crop_to_multiple(image), out_dir / f"{frame.id}.png")
             extracted.append(frame)
             if len(extracted) % 25 == 0:
                 log(f"extraction: {len(extracted)}/{len(wanted)} frames")
@@ -174,7 +175,7 @@ def collect_image_frames(folder: Path, out_dir: Path, *, max_size: int, log: Log
             scaled_size=image.size,
         )
         saved = crop_to_multiple(np.asarray(image))
-        Image.fromarray(saved).save(out_dir / f"{frame.id}.png", format="PNG")
+        save_frame_png(saved, out_dir / f"{frame.id}.png")
         extracted.append(frame)
     _check_count(folder, extracted, "more images")
     log(f"images: {len(extracted)} frames saved at {saved.shape[1]}x{saved.shape[0]}")
