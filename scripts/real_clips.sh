@@ -16,11 +16,14 @@
 #    (real-clips-motion-with-tracks.yml), into DIR/experiment-<spec>;
 # 4. masks of the moving subject on each test view, from the boxes drawn by eye in
 #    docs/experiments/real-clips-boxes.json, and `liquidgs eval --mask` of every finished run of a clip
-#    that has them (scores inside and outside, test cameras as given and aligned); the runs with the
-#    motion evidence once each, also inside the scene's own motion masks (`eval --mask auto`, with the
-#    rendered motion's end-point error: RUN/eval-auto.json), so a stopped rebuild does not score them again;
+#    that has them (scores inside and outside, test cameras as given and aligned); the runs with and
+#    without the motion evidence once each, also inside the scene's own motion masks (`eval --mask auto`,
+#    with the rendered motion's end-point error: RUN/eval-auto.json), so a stopped rebuild does not score
+#    them again;
 # 5. how the scenes' own motion masks (data flow) agree with the boxes (DIR/mask-agreement.txt);
-# 6. the two reports. Steps already done (a folder that exists) are skipped, so a stopped rebuild resumes.
+# 6. the reports, and the specs compared pair by pair with the verdict rule (the evidence against
+#    none, each piece off in turn, the tracks: docs/experiments/real_clips_compare.py, into
+#    DIR/comparisons.md). Steps already done (a folder that exists) are skipped, so a stopped rebuild resumes.
 # LIQUIDGS (default: liquidgs) is the command to run, e.g. "python -m liquidgs.cli"; PYTHON (default:
 # python3) one with liquidgs' dependencies, for the masks.
 set -euo pipefail
@@ -60,17 +63,17 @@ done
 "${python[@]}" "$root/docs/experiments/real_clips_masks.py" "$out/masks"
 for masks in "$out"/masks/*/; do
     clip=$(basename "$masks")
-    for run in "$out"/experiment/*/"$clip"/*/*/ "$out"/experiment-without-regularisers/*/"$clip"/*/*/; do
+    for run in "$out"/experiment-without-regularisers/*/"$clip"/*/*/; do
         [ -f "$run/results.json" ] || continue
         log="$out/logs/eval-$clip-$(basename "$(dirname "$run")")-$(basename "$run").log"
         "${liquidgs[@]}" eval --run "${run%/}" --mask "${masks%/}" > "$log" 2>&1 \
             || echo "$clip: eval --mask of ${run%/} failed: $(tail -n 1 "$log")" >&2
     done
 done
-# The runs with the motion evidence, once each: scored inside the scene's own motion masks, with the
-# rendered motion's end-point error (kept as eval-auto.json), then inside the boxes where the clip has
-# them (eval.json, which the report reads).
-for run in "$out"/experiment-motion*/*/*/*/*/; do
+# The runs with the motion evidence and those without it, once each: scored inside the scene's own
+# motion masks, with the rendered motion's end-point error (kept as eval-auto.json), then inside the
+# boxes where the clip has them (eval.json, which the reports read).
+for run in "$out"/experiment/*/*/*/*/ "$out"/experiment-motion*/*/*/*/*/; do
     [ -f "$run/results.json" ] || continue
     rel=${run#"$out"/}
     rel=${rel%/}  # experiment-SPEC/DATASET/CLIP/FIELD/HASH
@@ -95,3 +98,4 @@ done
 for spec in motion motion-with-tracks motion-without-flow motion-without-split; do
     "${liquidgs[@]}" experiment report "$out/experiment-$spec"
 done
+"${python[@]}" "$root/docs/experiments/real_clips_compare.py" "$out" | tee "$out/comparisons.md"
