@@ -88,10 +88,14 @@ inline F64::V exp_neg(F64::V x) {
     return out;
 }
 
+// The lanes summed as a tree (halves added, then their halves): three vector additions for eight
+// lanes where a chain takes seven dependent scalar ones.
 template <typename P> typename P::S lane_sum(typename P::V v) {
-    typename P::S sum = 0;
-    for (int lane = 0; lane < P::lanes; ++lane) sum += v[lane];
-    return sum;
+    typename P::S half[P::lanes];
+    for (int lane = 0; lane < P::lanes; ++lane) half[lane] = v[lane];
+    for (int width = P::lanes / 2; width >= 1; width /= 2)
+        for (int lane = 0; lane < width; ++lane) half[lane] += half[lane + width];
+    return half[0];
 }
 
 struct TileGeometry {
