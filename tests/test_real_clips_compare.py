@@ -81,3 +81,10 @@ def test_two_finished_runs_of_one_clip_field_and_seed_are_refused(runs_folder):
     shutil.copytree(cell / "mlp0ment", cell / "another-hash")
     with pytest.raises(SystemExit, match="a second finished run of"):
         load_script().report(runs_folder)
+
+
+def test_a_broken_results_file_is_one_line_naming_it(runs_folder):
+    broken = next(runs_folder.glob("experiment/real-clips/cat/mlp/*/results.json"))
+    broken.write_text("{ not json")
+    with pytest.raises(SystemExit, match=f"{broken}: cannot be read as JSON"):
+        load_script().report(runs_folder)

@@ -47,22 +47,29 @@ EPE_COMPARISONS = (
 Runs = dict[tuple[str, str, int], dict]
 
 
+def read_json(path: Path) -> dict:
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError) as err:
+        raise SystemExit(f"{path}: cannot be read as JSON ({err})") from None
+
+
 def read_runs(folder: Path) -> Runs:
     """{(clip, field, seed): scores} of every finished run under an experiment folder
     (DATASET/CLIP/FIELD/HASH/results.json)."""
     runs: Runs = {}
     for results_file in sorted(folder.glob("*/*/*/*/results.json")):
         run = results_file.parent
-        results = json.loads(results_file.read_text())
+        results = read_json(results_file)
         if not isinstance((results.get("final_aligned") or {}).get("psnr"), float) or "seed" not in results:
             raise SystemExit(f"{results_file}: no seed or final_aligned.psnr (the real-clip specs score aligned)")
         clip, field = run.parent.parent.name, run.parent.name
         scores = {"aligned": results["final_aligned"]["psnr"]}
         if (run / "eval.json").is_file():
-            inside = (json.loads((run / "eval.json").read_text()).get("masked_aligned") or {}).get("inside") or {}
+            inside = (read_json(run / "eval.json").get("masked_aligned") or {}).get("inside") or {}
             scores["subject"] = inside.get("psnr")
         if (run / "eval-auto.json").is_file():
-            flow_error = json.loads((run / "eval-auto.json").read_text()).get("flow_error") or {}
+            flow_error = read_json(run / "eval-auto.json").get("flow_error") or {}
             scores["epe"] = flow_error.get("inside_masks_px")
         key = (clip, field, int(results["seed"]))
         if key in runs:
