@@ -11,7 +11,8 @@ specs over every (clip, seed) both hold, with the project's verdict rule
 - everything against each piece off: the flow loss (experiment-motion-without-flow, whose static
   model is experiment's: the specs' own comments say which) and the static/dynamic split
   (experiment-motion-without-split, whose static model is experiment-motion's);
-- the tracks: experiment-motion-with-tracks against experiment-motion.
+- the tracks: experiment-motion-with-tracks against experiment-motion;
+- each piece alone against neither: an ablation spec against experiment.
 
 Then the rendered motion's end-point error inside the scenes' own motion masks (eval-auto.json), and
 the still clips (no boxes: each field's aligned PSNR over the static model's, on the whole views).
@@ -38,6 +39,8 @@ COMPARISONS = (
     ("with the flow loss against without it", "experiment-motion", "experiment-motion-without-flow"),
     ("with the split against without it", "experiment-motion", "experiment-motion-without-split"),
     ("with the tracks against without them", "experiment-motion-with-tracks", "experiment-motion"),
+    ("the split alone against neither piece", "experiment-motion-without-flow", "experiment"),
+    ("the flow loss alone against neither piece", "experiment-motion-without-split", "experiment"),
 )
 EPE_COMPARISONS = (
     ("the flow loss on against off", "experiment-motion", "experiment-motion-without-flow"),
