@@ -231,8 +231,9 @@ def compute_scene_flow(scene: Path, downscale: int | None, log: Log | None = Non
             shares.append(float(mask.mean()))
             _write_png(building / MASKS_FOLDER / f"{frame.name}.png", mask)
             for other in neighbours[frame.name]:  # kept until the other end's mask has used it too
-                uses[frozenset((frame.name, other.name))] -= 1
-                if not uses[frozenset((frame.name, other.name))]:
+                pair = frozenset((frame.name, other.name))
+                uses[pair] -= 1
+                if not uses[pair]:
                     flows.pop((frame.name, other.name), None)
                     flows.pop((other.name, frame.name), None)
             if (i + 1) % 10 == 0 or i + 1 == len(everything):
