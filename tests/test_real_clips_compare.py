@@ -10,7 +10,10 @@ from pathlib import Path
 
 import pytest
 
+from liquidgs.train.run_folder.provenance import source_record
+
 ROOT = Path(__file__).resolve().parents[1]
+ITERATIONS = 1500
 MOVING = ["cat", "lady-running", "backpack", "teddy", "pillow"]
 
 
@@ -25,11 +28,15 @@ def write_run(root: Path, spec: str, clip: str, field: str, seed: int, subject: 
               aligned: float = 25.0) -> None:  # fmt: skip
     run = root / spec / "real-clips" / clip / field / f"{field}{seed}{spec[-4:]}"
     run.mkdir(parents=True)
-    (run / "results.json").write_text(json.dumps({"seed": seed, "final_aligned": {"psnr": aligned}}))
+    (run / "checkpoint.pt").write_bytes(f"{spec} {clip} {field} {seed}".encode())
+    results = {"seed": seed, "iterations": ITERATIONS, "final_aligned": {"psnr": aligned}}
+    (run / "results.json").write_text(json.dumps(results))
+    evaluated = {"iteration": ITERATIONS, "finished": True,
+                 "source": source_record(run, "0123456789", ITERATIONS, run / "checkpoint.pt")}  # fmt: skip
     if subject is not None:
-        (run / "eval.json").write_text(json.dumps({"masked_aligned": {"inside": {"psnr": subject}}}))
+        (run / "eval.json").write_text(json.dumps({**evaluated, "masked_aligned": {"inside": {"psnr": subject}}}))
     if epe is not None:
-        (run / "eval-auto.json").write_text(json.dumps({"flow_error": {"inside_masks_px": epe}}))
+        (run / "eval-auto.json").write_text(json.dumps({**evaluated, "flow_error": {"inside_masks_px": epe}}))
 
 
 @pytest.fixture
@@ -90,4 +97,20 @@ def test_a_broken_results_file_is_one_line_naming_it(runs_folder):
     broken = next(runs_folder.glob("experiment/real-clips/cat/mlp/*/results.json"))
     broken.write_text("{ not json")
     with pytest.raises(SystemExit, match=f"{broken}: cannot be read as JSON"):
+        load_script().report(runs_folder)
+
+
+def test_an_evaluation_of_another_checkpoint_is_refused_in_one_line(runs_folder):
+    """A run trained on after its evaluation (its checkpoint changed), or evaluated before it
+    finished: its scores are not the run's, so the comparison stops naming the file."""
+    run = runs_folder / "experiment-motion" / "real-clips" / "cat" / "mlp" / "mlp0tion"
+    (run / "checkpoint.pt").write_bytes(b"trained on")
+    changed = r"eval.json: derived from the checkpoint at iteration 1500, but .* has changed"
+    with pytest.raises(SystemExit, match=changed):
+        load_script().report(runs_folder)
+    run = runs_folder / "experiment" / "real-clips" / "cat" / "cfc" / "cfc1ment"
+    auto = json.loads((run / "eval-auto.json").read_text())
+    (run / "eval-auto.json").write_text(json.dumps({**auto, "iteration": 600, "finished": False}))
+    shutil.rmtree(runs_folder / "experiment-motion")
+    with pytest.raises(SystemExit, match=r"eval-auto.json: evaluates iteration 600, not the finished run's 1500"):
         load_script().report(runs_folder)

@@ -16,7 +16,8 @@ specs over every (clip, seed) both hold, with the project's verdict rule
 
 Then the rendered motion's end-point error inside the scenes' own motion masks (eval-auto.json), and
 the still clips (no boxes: each field's aligned PSNR over the static model's, on the whole views).
-A spec folder that is missing is left out of the comparisons that need it.
+A spec folder that is missing is left out of the comparisons that need it. An evaluation whose run
+has trained on since, or was evaluated before it finished, is refused in one line naming the file.
 """
 
 from __future__ import annotations
@@ -26,7 +27,9 @@ import math
 import sys
 from pathlib import Path
 
+from liquidgs.errors import LiquidGSError
 from liquidgs.experiments.report.significance import call, t_interval
+from liquidgs.train.run_folder.provenance import check_source
 
 BOXES = Path(__file__).with_name("real-clips-boxes.json")
 STATIC = "static"
@@ -45,6 +48,7 @@ COMPARISONS = (
 EPE_COMPARISONS = (
     ("the flow loss on against off", "experiment-motion", "experiment-motion-without-flow"),
     ("the motion evidence against none", "experiment-motion", "experiment"),
+    ("the flow loss alone against neither piece", "experiment-motion-without-split", "experiment"),
 )
 
 Runs = dict[tuple[str, str, int], dict]
@@ -57,6 +61,20 @@ def read_json(path: Path) -> dict:
         raise SystemExit(f"{path}: cannot be read as JSON ({err})") from None
 
 
+def read_eval(run: Path, name: str, iterations: int) -> dict:
+    """A run's evaluation file, checked against the run as it is now: of its final checkpoint, at
+    the iteration the run finished at."""
+    path = run / name
+    scores = read_json(path)
+    try:
+        check_source(path, scores.get("source"), folder=run, again=f"evaluate it again (liquidgs eval --run {run})")
+    except LiquidGSError as err:
+        raise SystemExit(str(err)) from None
+    if scores.get("iteration") != iterations or scores.get("finished") is not True:
+        raise SystemExit(f"{path}: evaluates iteration {scores.get('iteration')}, not the finished run's {iterations}")
+    return scores
+
+
 def read_runs(folder: Path) -> Runs:
     """{(clip, field, seed): scores} of every finished run under an experiment folder
     (DATASET/CLIP/FIELD/HASH/results.json)."""
@@ -66,13 +84,15 @@ def read_runs(folder: Path) -> Runs:
         results = read_json(results_file)
         if not isinstance((results.get("final_aligned") or {}).get("psnr"), float) or "seed" not in results:
             raise SystemExit(f"{results_file}: no seed or final_aligned.psnr (the real-clip specs score aligned)")
+        if type(results.get("iterations")) is not int:
+            raise SystemExit(f"{results_file}: no iterations")
         clip, field = run.parent.parent.name, run.parent.name
         scores = {"aligned": results["final_aligned"]["psnr"]}
         if (run / "eval.json").is_file():
-            inside = (read_json(run / "eval.json").get("masked_aligned") or {}).get("inside") or {}
-            scores["subject"] = inside.get("psnr")
+            inside = (read_eval(run, "eval.json", results["iterations"]).get("masked_aligned") or {}).get("inside")
+            scores["subject"] = (inside or {}).get("psnr")
         if (run / "eval-auto.json").is_file():
-            flow_error = read_json(run / "eval-auto.json").get("flow_error") or {}
+            flow_error = read_eval(run, "eval-auto.json", results["iterations"]).get("flow_error") or {}
             scores["epe"] = flow_error.get("inside_masks_px")
         key = (clip, field, int(results["seed"]))
         if key in runs:

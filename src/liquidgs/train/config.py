@@ -36,7 +36,7 @@ from liquidgs.fields.registry import check_recorded_field, field_record
 from liquidgs.render import BACKENDS
 from liquidgs.settings import to_dict, with_settings
 from liquidgs.train.camera_opt import Alignment, CameraRefineConfig, known_format, refines
-from liquidgs.train.dynamic_split import SplitConfig, split_applies
+from liquidgs.train.dynamic_split import SplitConfig, split_applies, split_by_default
 from liquidgs.train.exposure import ExposureConfig, compensates
 from liquidgs.train.flow_loss import DEFAULT_WEIGHT, FlowLossConfig
 from liquidgs.train.motion_reg import MotionRegConfig, motion_applies
@@ -367,15 +367,16 @@ _FIELD_OPTION_NAMES = frozenset(f.name for f in dataclasses.fields(FieldOptions)
 def with_motion_evidence(cfg: TrainConfig) -> TrainConfig:
     """`cfg` with the motion evidence it leaves to the scene decided: where the scene has optical flow
     and motion masks at the scale the run reads (data.flow.has_flow) the flow loss at DEFAULT_WEIGHT
-    and the static/dynamic split on, elsewhere (D-NeRF, synthetic scenes, captures without flow)
-    both off. A value set (flow.weight, split.apply) is kept. The one owner of these defaults: the
-    trainer records its result in config.yml (the run resumes and reproduces as trained, whatever
-    later happens to the scene's flow) and the identity hashes it."""
+    and the static/dynamic split on (for a field split_by_default allows), elsewhere (D-NeRF,
+    synthetic scenes, captures without flow) both off. A value set (flow.weight, split.apply) is
+    kept. The one owner of these defaults: the trainer records its result in config.yml (the run
+    resumes and reproduces as trained, whatever later happens to the scene's flow) and the identity
+    hashes it."""
     if cfg.flow.weight is not None and cfg.split.apply is not None:
         return cfg
     found = has_flow(cfg.data)
     weight = cfg.flow.weight if cfg.flow.weight is not None else DEFAULT_WEIGHT if found else 0.0
-    apply = cfg.split.apply if cfg.split.apply is not None else found
+    apply = cfg.split.apply if cfg.split.apply is not None else found and split_by_default(cfg.field)
     return dataclasses.replace(cfg, flow=dataclasses.replace(cfg.flow, weight=weight),
                                split=dataclasses.replace(cfg.split, apply=apply))  # fmt: skip
 
@@ -412,6 +413,8 @@ def check_given_settings(cfg: TrainConfig, given: typing.Iterable[str]) -> None:
         if group == "split" and name != "apply" and not split_applies(cfg.split, cfg.field):
             if cfg.field == "static":
                 why = "the static field does not move Gaussians"
+            elif split_left_to_scene and not split_by_default(cfg.field):
+                why = f"field '{cfg.field}' trains unsplit unless --split.apply true is given"
             elif split_left_to_scene:
                 why = "the scene has no optical flow at the training scale (liquidgs data flow), so the split is off"
             else:
