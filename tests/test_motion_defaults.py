@@ -18,7 +18,7 @@ from liquidgs.commands.train import resolve_config
 from liquidgs.errors import ConfigError
 from liquidgs.experiments import BUILTIN_SPECS, expand
 from liquidgs.experiments.spec import NERFDS_SCENES
-from liquidgs.train.config import config_hash, identity, load_yaml, with_motion_evidence
+from liquidgs.train.config import config_hash, identity, load_yaml, motion_evidence_note, with_motion_evidence
 from liquidgs.train.flow_loss import DEFAULT_WEIGHT
 from shared_data import use_optional_lpips
 from tiny_runs import interrupt_at, run_train, tiny_flags
@@ -70,6 +70,21 @@ def test_hexplane_trains_a_capture_with_flow_unsplit_unless_told(flow_capture):
         resolve_config(["--data", str(flow_capture), "--preset", "tiny", "--field", "hexplane", "--split.vote", "0.3"])
     mlp = with_motion_evidence(configs(flow_capture, "--field", "mlp")[0])
     assert mlp.split.apply is True  # one network over all of space: split
+
+
+def test_a_run_says_what_it_decided_from_the_scene(flow_capture, puppet_scene):
+    """The decision is printed as a note: what the run trains with and the flags that turn it off;
+    nothing where the scene has no flow or every setting was given."""
+    split = "the static/dynamic split (--flow.weight 0 --split.apply false to train without)"
+    unsplit = ("no static/dynamic split (field 'hexplane' trains unsplit; --split.apply true splits it) "
+               "(--flow.weight 0 to train without)")  # fmt: skip
+    for field, says in (("mlp", split), ("hexplane", unsplit)):
+        says = f"training with the flow loss at 0.02 and {says}"
+        given, _ = configs(flow_capture, "--field", field)
+        note = motion_evidence_note(given, with_motion_evidence(given))
+        assert note == f"the scene has optical flow and motion masks at this scale: {says}", note
+    for given in (configs(flow_capture)[1], configs(puppet_scene)[0]):
+        assert motion_evidence_note(given, with_motion_evidence(given)) is None
 
 
 def test_tracks_asked_of_flow_computed_before_them_are_one_line(flow_capture, tmp_path):

@@ -381,6 +381,24 @@ def with_motion_evidence(cfg: TrainConfig) -> TrainConfig:
                                split=dataclasses.replace(cfg.split, apply=apply))  # fmt: skip
 
 
+def motion_evidence_note(given: TrainConfig, decided: TrainConfig) -> str | None:
+    """The line a run prints where with_motion_evidence turned a setting left to the scene on: what it
+    trains with, and how to train without."""
+    flow_decided = given.flow.weight is None and decided.flow.weight > 0
+    split_decided = given.split.apply is None and split_applies(decided.split, decided.field)
+    if not (flow_decided or split_decided):
+        return None
+    parts = [f"the flow loss at {decided.flow.weight:g}"] if decided.flow.weight > 0 else []
+    if split_applies(decided.split, decided.field):
+        parts.append("the static/dynamic split")
+    elif given.split.apply is None and decided.field != "static":
+        parts.append(f"no static/dynamic split (field '{decided.field}' trains unsplit; --split.apply true splits it)")
+    off = " ".join(flag for flag, left in (("--flow.weight 0", flow_decided), ("--split.apply false", split_decided))
+                   if left)  # fmt: skip
+    found = "the scene has optical flow and motion masks at this scale"
+    return f"{found}: training with {' and '.join(parts)} ({off} to train without)"
+
+
 def check_given_settings(cfg: TrainConfig, given: typing.Iterable[str]) -> None:
     """ConfigError for a setting given on the command line (dotted keys) that this run never reads: a
     field option of another field, a motion term's setting where the motion terms are off. Only what

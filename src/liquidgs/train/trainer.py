@@ -27,7 +27,7 @@ from liquidgs.eval.metrics import MIN_MSE, psnr_from_mse
 from liquidgs.fields import build_field
 from liquidgs.gaussians import PARAM_KEYS, init_from_points, init_random_box
 from liquidgs.train.camera_opt import CameraRefinement, aligned_render, refines
-from liquidgs.train.config import TrainConfig, save_yaml, with_motion_evidence
+from liquidgs.train.config import TrainConfig, motion_evidence_note, save_yaml, with_motion_evidence
 from liquidgs.train.dataset import load_run_dataset
 from liquidgs.train.dynamic_split import DYNAMIC, MotionVotes, moving_indices, split_applies
 from liquidgs.train.exposure import ExposureCompensation, compensates
@@ -128,7 +128,7 @@ def _say(progress, line: str) -> None:
 
 class Trainer:
     def __init__(self, cfg: TrainConfig, run_dir: Path, dataset: SceneDataset | None = None):
-        cfg = with_motion_evidence(cfg)  # decided once, at the start, and recorded so in config.yml
+        given, cfg = cfg, with_motion_evidence(cfg)  # decided once, at the start, and recorded so in config.yml
         self.cfg = cfg
         self.run_dir = Path(run_dir)
         self.device = resolve_device(cfg.device)
@@ -149,7 +149,7 @@ class Trainer:
         self.field.begin_training(self.params["means"].detach())  # its set-up hook; checks its outputs
         self.optimizers = {key: self._adam([self.params[key]], self._static_lr(key)) for key in PARAM_KEYS}
         self.field_optimizer = self._field_adam()
-        self.notes: list[str] = []
+        self.notes: list[str] = [note for note in [motion_evidence_note(given, cfg)] if note]
         """Things the user should know about this run (printed by the train command)."""
         self.strategy = D3DGSStrategy(cfg.densify, self._scene_extent())
         self.strategy_state = self.strategy.initial_state(self.params["means"].shape[0], self.device)
