@@ -8,6 +8,7 @@ import json
 import math
 import shutil
 import struct
+import types
 from pathlib import Path
 
 import numpy as np
@@ -18,6 +19,7 @@ from liquidgs.bake.distil import BakeSettings, distil
 from liquidgs.bake.motion import QUATERNION, align_quaternion_signs, interpolate, keyframe_times, pack_keyframe
 from liquidgs.bake.scene import BakedRun
 from liquidgs.bake.tracks import Tracks, from_row_codes, pack, row_codes, unpack
+from liquidgs.cameras import Camera, look_at
 from liquidgs.eval.metrics import psnr
 from liquidgs.train.dataset import load_run_dataset
 from liquidgs.train.model import Deformed
@@ -356,7 +358,7 @@ def test_splatv_file_follows_the_layout_splatv_players_read(baked, tmp_path):
     """Decoded word by word from the format's description (bake/formats.py docstring), not with the
     writer's record type."""
     from liquidgs.bake.formats import SPLATV_CAMERA_WIDTH
-    from liquidgs.bake.pieces import fit_splatv
+    from liquidgs.bake.pieces import fit_within_bytes
 
     out = tmp_path / "export"
     code, _, err = run_cli(["export", "--run", str(baked), "--out", str(out), "--format", "splatv"])
@@ -374,7 +376,8 @@ def test_splatv_file_follows_the_layout_splatv_players_read(baked, tmp_path):
     assert chunk["cameras"][0]["fx"] == pytest.approx(float(first.K[0, 0]) * SPLATV_CAMERA_WIDTH / first.width)
     words = np.frombuffer(data[8 + length :], dtype="<u4")
     assert words.size * 4 == chunk["size"] == chunk["texwidth"] * chunk["texheight"] * 16
-    model = fit_splatv(run, [f.camera for f in frames]).model
+    background = torch.tensor(dataset.background, dtype=torch.float32)
+    model = fit_within_bytes(run, frames, dataset.train, background).model  # the export's default
     n = model.position.shape[0]
     records = words.reshape(-1, 16)
     assert not records[n:].any()  # the last row's unused slots are zero
@@ -414,20 +417,96 @@ def splatv_records(data: bytes) -> int:
 
 @pytest.mark.slow
 def test_splatv_budget_flags_reach_the_fit(baked, tmp_path):
-    """--splatv-tolerance and --splatv-pieces are the fit's budget: a tighter one writes the records
-    the fit gives for it, more than the default's."""
-    from liquidgs.bake.pieces import fit_splatv
+    """--splatv-tolerance and --splatv-pieces are the fit's budget, weighted by the pixel shares: a
+    tighter one writes the records the fit gives for it, more than the default's."""
+    from liquidgs.bake.pieces import fit_splatv, pixel_shares
 
     records = {}
-    for name, flags in (("default", []), ("tight", ["--splatv-tolerance", "0.25", "--splatv-pieces", "12"])):
+    for name, flags in (("default", []), ("tight", ["--splatv-tolerance", "0.12", "--splatv-pieces", "12"])):
         out = tmp_path / name
         code, _, err = run_cli(["export", "--run", str(baked), "--out", str(out), "--format", "splatv", *flags])
         assert code == 0, err
         records[name] = splatv_records((out / "scene.splatv").read_bytes())
     run = load_run(baked, "cpu")
     dataset = run.scene()
-    cameras = [f.camera for f in (*dataset.test, *dataset.train)]
-    assert records["tight"] == fit_splatv(run, cameras, 0.25, 12).report["records"] > records["default"]
+    frames = [*dataset.test, *dataset.train]
+    shares = pixel_shares(run, frames, torch.tensor(dataset.background, dtype=torch.float32))
+    tight = fit_splatv(run, [f.camera for f in frames], 0.12, 12, shares).report["records"]
+    assert records["tight"] == tight > records["default"]
+
+
+class FlatRun:
+    """Two flat Gaussians in front of a camera: the first opaque and wide, the second small and
+    behind it, so it makes almost none of the picture. A run's interface as pixel_shares reads it."""
+
+    def __init__(self):
+        self.params = {"opacities": torch.tensor([8.0, 8.0])}
+        self.config = types.SimpleNamespace(backend="torch")
+
+    def at_time(self, time: float) -> Deformed:
+        means = torch.tensor([[0.0, 0.0, 0.0], [0.05, 0.0, 1.0]])
+        scales = torch.tensor([[0.6, 0.6, 0.01], [0.1, 0.1, 0.01]])
+        colours = torch.zeros(2, 1, 3)
+        return Deformed(means, axis_angle_quats(torch.zeros(2)), scales, torch.sigmoid(self.params["opacities"]),
+                        colours)  # fmt: skip
+
+
+def test_pixel_shares_are_each_gaussians_compositing_weight():
+    """Summed over the Gaussians, the shares are the picture's alpha; a Gaussian hidden behind an
+    opaque one makes almost none of it."""
+    from liquidgs.bake.pieces import pixel_shares
+    from liquidgs.render import rasterize
+
+    run, view = FlatRun(), look_at(torch.tensor([0.0, 0.0, -3.0]), torch.zeros(3), torch.tensor([0.0, -1.0, 0.0]))
+    camera = Camera.from_fov(view, math.radians(40), 48, 48)
+    frames = [types.SimpleNamespace(camera=camera, time=t) for t in (0.0, 0.5)]
+    with torch.no_grad():  # as bench bake calls it
+        shares = pixel_shares(run, frames, torch.zeros(3))
+    g = run.at_time(0.0)
+    alpha = rasterize(g.means, g.quats, g.scales, g.opacities, g.colors, camera.viewmat, camera.K, 48, 48,
+                      sh_degree=0, background=torch.zeros(3), backend="torch").alpha  # fmt: skip
+    assert float(shares.sum()) == pytest.approx(2 * float(alpha.sum()), rel=1e-4)
+    assert float(shares[0]) > 0.99 * float(shares.sum()) and float(shares[1]) < 1e-3 * float(shares[0])
+
+
+def test_a_gaussian_that_makes_little_of_the_picture_takes_fewer_pieces():
+    """The weighted budget: two Gaussians on the same swing, one making a thousandth of the pixels
+    the other makes; the large one is held to the tolerance, the small one's budget is about 30 times
+    looser, so it needs fewer pieces."""
+    from liquidgs.bake.pieces import IMPORTANCE_QUANTILE, fit_splatv, weighted_budget
+
+    swing = AnalyticRun(lambda t: torch.tensor([[0.5 * math.sin(4 * math.pi * t), 0.0, 0.0]] * 2), 2, spin=0.0)
+    swing.params.update(sh0=torch.zeros(2, 1, 3), shN=torch.zeros(2, 0, 3))
+    swing.sh_degree = 0
+    shares = torch.tensor([1000.0, 1.0])
+    budget = weighted_budget(0.1, shares, 2)
+    reference = 1 + IMPORTANCE_QUANTILE * 999  # the shares' quantile, linearly interpolated
+    assert budget[0] == pytest.approx(0.1) and budget[1] == pytest.approx(0.1 * math.sqrt(reference))
+    plain, weighted = fit_splatv(swing, tolerance=0.1), fit_splatv(swing, tolerance=0.1, shares=shares)
+    (held,) = (int(p) for p in plain.report["pieces"])  # the same motion: one count for both
+    assert sorted(int(p) for p in weighted.report["pieces"])[1:] == [held]  # the large one as before
+    assert len(weighted.report["pieces"]) == 2 and weighted.report["records"] < plain.report["records"]
+    assert weighted.report["gaussians_over_budget"] == 0 and weighted.report["weighted"] is True
+
+
+@pytest.mark.slow
+def test_the_export_keeps_the_closest_budget_within_four_records_a_gaussian(baked):
+    """fit_within_bytes: tolerances tried loosest first until one is over 4 records per Gaussian; the
+    one kept is within and the best on the train views of those within."""
+    from liquidgs.bake.pieces import AUTO_TOLERANCES, MOST_RECORDS, fit_within_bytes
+
+    run = load_run(baked, "cpu")
+    dataset = run.scene()
+    fitted = fit_within_bytes(run, [*dataset.test, *dataset.train], dataset.train,
+                              torch.tensor(dataset.background, dtype=torch.float32))  # fmt: skip
+    n = run.params["means"].shape[0]
+    tried = fitted.report["tried"]
+    assert [t["tolerance"] for t in tried] == list(AUTO_TOLERANCES[: len(tried)])
+    within = [t for t in tried if t["records"] <= MOST_RECORDS * n]
+    assert all(t["train_views_db"] is not None for t in within) and within == tried[: len(within)]
+    assert len(within) == len(tried) or len(within) == len(tried) - 1  # it stops at the first over
+    best = max(within, key=lambda t: t["train_views_db"])
+    assert fitted.report["tolerance"] == best["tolerance"] and fitted.report["records"] == best["records"] <= 4 * n
 
 
 def test_splatv_fit_keeps_motion_its_model_can_hold():

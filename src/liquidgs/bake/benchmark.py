@@ -22,7 +22,7 @@ from pathlib import Path
 import torch
 
 from liquidgs.bake.formats import parse_splatv, splatv_bytes
-from liquidgs.bake.pieces import agreement, fit_splatv
+from liquidgs.bake.pieces import agreement, fit_within_bytes
 from liquidgs.bake.scene import is_baked, load_baked
 from liquidgs.errors import ConfigError, LiquidGSError
 from liquidgs.eval.metrics import psnr, quantize_8bit
@@ -87,7 +87,7 @@ def measure(run_dir: Path, baked_dir: Path, repeats: int) -> dict:
     def baked_render(frame):
         return baked.render(frame.camera, frame.time, background).rgb.clamp(0, 1)
 
-    fitted = fit_splatv(baked, [f.camera for f in (*dataset.test, *dataset.train)])
+    fitted = fit_within_bytes(baked, [*dataset.test, *dataset.train], dataset.train, background)  # the export's
     splatv, _ = parse_splatv(splatv_bytes(fitted.model, []))  # as the file holds it: float16, 8-bit colour
     splatv_agreement = agreement(run, splatv, frames, background)
 

@@ -45,7 +45,7 @@ from liquidgs.bake.formats import (
     splatv_camera,
     write_plyseq,
 )
-from liquidgs.bake.pieces import MAX_PIECES, TOLERANCE, agreement, fit_splatv
+from liquidgs.bake.pieces import MAX_PIECES, agreement, fit_splatv, fit_within_bytes, pixel_shares
 from liquidgs.bake.spz import write_spz
 from liquidgs.bake.web import write_web, write_web_page
 from liquidgs.errors import ConfigError, check_finite
@@ -70,11 +70,12 @@ class ExportArgs:
     """ply: the PLYs above; plyseq: OUT/sequence.zip of --sequence PLYs; splatv: OUT/scene.splatv;
     web: OUT/web, a static folder that plays the scene in a browser; html: OUT/scene.html, that
     page as one file that opens from disk; spz: OUT/time_T.spz per --time, static SPZ files."""
-    splatv_tolerance: float = TOLERANCE
+    splatv_tolerance: float | None = None
     """--format splatv: each piece's budget, its position within this fraction of the Gaussian's size
-    (counted as at least 4 pixel widths) and its rotation within this many radians wherever it shows.
-    Lower keeps more of the motion in more pieces: on the demo 0.5 gave 34.5 dB against the field at
-    2.9 records per Gaussian, 0.1 (with --splatv-pieces 17) 40.9 dB at 14.9 (docs/results/sharing.md)."""
+    (counted as at least 4 pixel widths) and its rotation within this many radians wherever it shows,
+    loosened for a Gaussian by how little of the picture it makes (its pixel share). Lower keeps more
+    of the motion in more pieces. Unset: the closest to the run on its train views of 0.12, 0.15, 0.2,
+    0.3 and 0.5 that keeps the file within 4 records per Gaussian (docs/results/sharing.md)."""
     splatv_pieces: int = MAX_PIECES
     """--format splatv: the most temporal pieces per Gaussian (of 1, 2, 3, 5, 9, 17, 33: the largest
     not above it); a Gaussian still over budget at the most is written with the most."""
@@ -113,11 +114,11 @@ def export_run(args: ExportArgs, console: Console | None = None) -> list[Path]:
         args.format in ("splatv", "web", "html", "spz") and args.sequence
     ):  # their motion is continuous: no frames to count
         raise ConfigError(f"--sequence has no effect with --format {args.format}: it sets the frames of ply and plyseq")
-    if not (math.isfinite(args.splatv_tolerance) and args.splatv_tolerance > 0):
+    if args.splatv_tolerance is not None and not (math.isfinite(args.splatv_tolerance) and args.splatv_tolerance > 0):
         raise ConfigError(f"--splatv-tolerance must be a positive number, got {args.splatv_tolerance}")
     if not 1 <= args.splatv_pieces <= MOST_SPLATV_PIECES:
         raise ConfigError(f"--splatv-pieces must be between 1 and {MOST_SPLATV_PIECES}, got {args.splatv_pieces}")
-    if args.format != "splatv" and (args.splatv_tolerance, args.splatv_pieces) != (TOLERANCE, MAX_PIECES):
+    if args.format != "splatv" and (args.splatv_tolerance is not None or args.splatv_pieces != MAX_PIECES):
         raise ConfigError(
             f"--splatv-tolerance and --splatv-pieces set the splatv fit: no effect with --format {args.format}"
         )
@@ -179,18 +180,22 @@ def export_sequence(run, folder: Path, frames: int, comments: tuple[str, ...], c
 
 
 def export_splatv(
-    run, path: Path, console: Console | None, tolerance: float = TOLERANCE, pieces: int = MAX_PIECES
+    run, path: Path, console: Console | None, tolerance: float | None = None, pieces: int = MAX_PIECES
 ) -> Path:
     """splaTV's motion model fitted to the run (or baked scene); the dataset's cameras go along,
     test views first (the player starts at the first), resized for a player's window. Prints the
-    pieces, the share of the motion kept and the PSNR of the file against the run on its test views."""
+    pieces, the budget, the share of the motion kept and the PSNR of the file against the run on its
+    test views."""
     dataset = run.scene()
     frames = [*dataset.test, *dataset.train]
-    fitted = fit_splatv(run, [f.camera for f in frames], tolerance, pieces)
+    background = torch.tensor(dataset.background, dtype=torch.float32)
+    if tolerance is None:
+        fitted = fit_within_bytes(run, frames, dataset.train, background, pieces)
+    else:
+        fitted = fit_splatv(run, [f.camera for f in frames], tolerance, pieces, pixel_shares(run, frames, background))
     check_finite(run.run_dir, "the fitted splatv model", vars(fitted.model))
     cameras = [splatv_camera(f.camera, f.name, SPLATV_CAMERA_WIDTH) for f in frames]
     data = splatv_bytes(fitted.model, cameras, run.source())
-    background = torch.tensor(dataset.background, dtype=torch.float32)
     as_stored, _ = parse_splatv(data, path)
     scores = agreement(run, as_stored, dataset.test or dataset.train[:AGREEMENT_VIEWS], background)
     written = write_atomic(path, lambda tmp: tmp.write_bytes(data))
@@ -206,7 +211,8 @@ def export_splatv(
         )
         against = "the field" if run.field is not None else "the baked scene"
         console.print(
-            f"splatv: {kept}; {report['records']:,} records for {n:,} Gaussians (Gaussians x pieces: {pieces}); "
+            f"splatv: {kept}; {report['records']:,} records for {n:,} Gaussians (Gaussians x pieces: {pieces}; "
+            f"budget {report['tolerance']:g}, weighted by each Gaussian's pixel share); "
             f"{sum(scores) / len(scores):.1f} dB against {against} on {len(scores)} views (worst {min(scores):.1f})",
             highlight=False,
         )
