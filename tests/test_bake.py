@@ -419,7 +419,7 @@ def splatv_records(data: bytes) -> int:
 def test_splatv_budget_flags_reach_the_fit(baked, tmp_path):
     """--splatv-tolerance and --splatv-pieces are the fit's budget, weighted by the pixel shares: a
     tighter one writes the records the fit gives for it, more than the default's."""
-    from liquidgs.bake.pieces import fit_splatv, pixel_shares
+    from liquidgs.bake.pieces import fit_splatv, pixel_weights
 
     records = {}
     for name, flags in (("default", []), ("tight", ["--splatv-tolerance", "0.12", "--splatv-pieces", "12"])):
@@ -430,14 +430,14 @@ def test_splatv_budget_flags_reach_the_fit(baked, tmp_path):
     run = load_run(baked, "cpu")
     dataset = run.scene()
     frames = [*dataset.test, *dataset.train]
-    shares = pixel_shares(run, frames, torch.tensor(dataset.background, dtype=torch.float32))
-    tight = fit_splatv(run, [f.camera for f in frames], 0.12, 12, shares).report["records"]
+    weights = pixel_weights(run, frames, torch.tensor(dataset.background, dtype=torch.float32))
+    tight = fit_splatv(run, [f.camera for f in frames], 0.12, 12, weights).report["records"]
     assert records["tight"] == tight > records["default"]
 
 
 class FlatRun:
     """Two flat Gaussians in front of a camera: the first opaque and wide, the second small and
-    behind it, so it makes almost none of the picture. A run's interface as pixel_shares reads it."""
+    behind it, so it makes almost none of the picture. A run's interface as pixel_weights reads it."""
 
     def __init__(self):
         self.params = {"opacities": torch.tensor([8.0, 8.0])}
@@ -451,22 +451,46 @@ class FlatRun:
                         colours)  # fmt: skip
 
 
-def test_pixel_shares_are_each_gaussians_compositing_weight():
-    """Summed over the Gaussians, the shares are the picture's alpha; a Gaussian hidden behind an
-    opaque one makes almost none of it."""
-    from liquidgs.bake.pieces import pixel_shares
+def test_pixel_weights_are_each_gaussians_compositing_weight():
+    """Summed over the Gaussians, a view's weights are its picture's alpha; a Gaussian hidden behind
+    an opaque one makes almost none of it."""
+    from liquidgs.bake.pieces import pixel_weights
     from liquidgs.render import rasterize
 
     run, view = FlatRun(), look_at(torch.tensor([0.0, 0.0, -3.0]), torch.zeros(3), torch.tensor([0.0, -1.0, 0.0]))
     camera = Camera.from_fov(view, math.radians(40), 48, 48)
     frames = [types.SimpleNamespace(camera=camera, time=t) for t in (0.0, 0.5)]
     with torch.no_grad():  # as bench bake calls it
-        shares = pixel_shares(run, frames, torch.zeros(3))
+        weights = pixel_weights(run, frames, torch.zeros(3))
+    assert weights.shape == (2, 2) and torch.allclose(weights[0], weights[1])  # nothing moves
+    shares = weights.sum(0)
     g = run.at_time(0.0)
     alpha = rasterize(g.means, g.quats, g.scales, g.opacities, g.colors, camera.viewmat, camera.K, 48, 48,
                       sh_degree=0, background=torch.zeros(3), backend="torch").alpha  # fmt: skip
     assert float(shares.sum()) == pytest.approx(2 * float(alpha.sum()), rel=1e-4)
     assert float(shares[0]) > 0.99 * float(shares.sum()) and float(shares[1]) < 1e-3 * float(shares[0])
+
+
+def test_the_colour_is_weighted_by_how_much_of_each_view_a_gaussian_makes():
+    """A Gaussian whose colour depends on the view (SH degree 1), seen from two sides: weighted by
+    views where it makes all of one and none of the other, its colour is that view's; unweighted,
+    or seen by neither, the mean of the two."""
+    from liquidgs.bake.pieces import seen_colour
+    from liquidgs.sh import eval_sh
+
+    run = types.SimpleNamespace(sh_degree=1, params={"sh0": torch.zeros(1, 1, 3), "shN": torch.zeros(1, 3, 3)})
+    run.params["shN"][0, 2] = torch.tensor([0.8, 0.0, -0.8])  # the x-direction coefficient
+    sides = [torch.tensor([x, 0.0, -3.0]) for x in (-3.0, 3.0)]
+    cameras = [Camera.from_fov(look_at(side, torch.zeros(3), torch.tensor([0.0, -1.0, 0.0])), 1.0, 8, 8)
+               for side in sides]  # fmt: skip
+    origin = torch.zeros(1, 3, dtype=torch.float64)
+    sh = torch.cat([run.params["sh0"], run.params["shN"]], dim=1).double()
+    each = [(eval_sh(1, sh, origin - side.double()) + 0.5).clamp(0, 1) for side in sides]
+    assert not torch.allclose(each[0], each[1], atol=0.05)
+    weighted = seen_colour(run, origin, cameras, torch.tensor([[5.0], [0.0]], dtype=torch.float64))
+    assert torch.allclose(weighted, each[0])
+    for weights in (None, torch.zeros(2, 1, dtype=torch.float64)):
+        assert torch.allclose(seen_colour(run, origin, cameras, weights), (each[0] + each[1]) / 2)
 
 
 def test_a_gaussian_that_makes_little_of_the_picture_takes_fewer_pieces():
@@ -482,7 +506,8 @@ def test_a_gaussian_that_makes_little_of_the_picture_takes_fewer_pieces():
     budget = weighted_budget(0.1, shares, 2)
     reference = 1 + IMPORTANCE_QUANTILE * 999  # the shares' quantile, linearly interpolated
     assert budget[0] == pytest.approx(0.1) and budget[1] == pytest.approx(0.1 * math.sqrt(reference))
-    plain, weighted = fit_splatv(swing, tolerance=0.1), fit_splatv(swing, tolerance=0.1, shares=shares)
+    plain = fit_splatv(swing, tolerance=0.1)
+    weighted = fit_splatv(swing, tolerance=0.1, weights=shares[None])  # one view's weights
     (held,) = (int(p) for p in plain.report["pieces"])  # the same motion: one count for both
     assert sorted(int(p) for p in weighted.report["pieces"])[1:] == [held]  # the large one as before
     assert len(weighted.report["pieces"]) == 2 and weighted.report["records"] < plain.report["records"]

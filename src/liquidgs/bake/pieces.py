@@ -14,7 +14,7 @@ Pieces are chosen per Gaussian on the ladder 1, 2, 3, 5, 9, ... MAX_PIECES: the 
 visible piece stays within the budget at every sample time, position error as a fraction of the
 Gaussian's largest axis (counted as at least PIXEL_FLOOR pixel widths in the camera that sees it
 finest, as the bake counts it), rotation error in radians. Given each Gaussian's share of the
-rendered pixels (pixel_shares), the budget is weighted by it (IMPORTANCE_QUANTILE): the pieces go to
+rendered pixels (pixel_weights), the budget is weighted by it (IMPORTANCE_QUANTILE): the pieces go to
 the Gaussians that make the picture. The export's default, fit_within_bytes, tries a few budgets and
 keeps the one closest to the run on train views within MOST_RECORDS records per Gaussian.
 """
@@ -150,25 +150,32 @@ def piece_opacity(opacity: torch.Tensor, window: torch.Tensor) -> torch.Tensor:
     return (((low + high) / 2)[:, None] * share[None]).clamp(max=1.0)
 
 
-def seen_colour(run, positions: torch.Tensor, cameras) -> torch.Tensor:
+def seen_colour(run, positions: torch.Tensor, cameras, weights: torch.Tensor | None = None) -> torch.Tensor:
     """[n, 3] in [0, 1]: the colour each Gaussian shows, averaged over the cameras' views of it
-    (splatv holds one colour, no view dependence), or its SH degree-0 colour without cameras."""
+    (splatv holds one colour, no view dependence) - with `weights` (pixel_weights at `cameras`) each
+    view by how much of it the Gaussian makes, evenly where it makes none - or its SH degree-0 colour
+    without cameras. Weighted, the demo's MLP file scored 0.3 dB closer to the field."""
     if not len(cameras):
         return (run.params["sh0"].detach().cpu().double()[:, 0] * SH_C0 + 0.5).clamp(0, 1)
     sh = torch.cat([run.params["sh0"], run.params["shN"]], dim=1).detach().cpu().double()
+    even = torch.full((len(cameras), positions.shape[0]), 1.0 / len(cameras), dtype=torch.float64)
+    if weights is not None:
+        seen = weights.sum(0)
+        even = torch.where(seen > 0, weights / seen.clamp_min(1e-300), even)
     total = torch.zeros(positions.shape[0], 3, dtype=torch.float64)
-    for camera in cameras:
+    for camera, share in zip(cameras, even, strict=True):
         centre = torch.linalg.inv(camera.viewmat.double().cpu())[:3, 3]
-        total += (eval_sh(run.sh_degree, sh, positions - centre) + 0.5).clamp(0, 1)
-    return total / len(cameras)
+        total += share[:, None] * (eval_sh(run.sh_degree, sh, positions - centre) + 0.5).clamp(0, 1)
+    return total
 
 
-def pixel_shares(run, frames, background: torch.Tensor) -> torch.Tensor:
-    """[n] float64: each Gaussian's compositing weight summed over every pixel of `frames` (each at its
-    camera and time). The rasteriser composites extra feature channels with colour's weights, so this
-    is the gradient of the composited sum of a channel of ones with respect to each Gaussian's one."""
+def pixel_weights(run, frames, background: torch.Tensor) -> torch.Tensor:
+    """[F, n] float64: each Gaussian's compositing weight summed over every pixel of each of `frames`
+    (at its camera and time); summed over the frames, its pixel share. The rasteriser composites extra
+    feature channels with colour's weights, so a row is the gradient of the composited sum of a
+    channel of ones with respect to each Gaussian's one."""
     n = run.params["opacities"].shape[0]
-    total = torch.zeros(n, dtype=torch.float64)
+    rows = []
     for frame in frames:
         with torch.no_grad():
             gaussians = run.at_time(frame.time)
@@ -177,12 +184,12 @@ def pixel_shares(run, frames, background: torch.Tensor) -> torch.Tensor:
             shown = render_frame(gaussians, frame.camera, sh_degree=0, background=background,
                                  backend=run.config.backend, features=ones)  # fmt: skip
             (weight,) = torch.autograd.grad(shown.features.sum(), ones)
-        total += weight.flatten().detach().cpu().double()
-    return total
+        rows.append(weight.flatten().detach().cpu().double())
+    return torch.stack(rows) if rows else torch.zeros(0, n, dtype=torch.float64)
 
 
 def weighted_budget(tolerance: float, shares: torch.Tensor | None, n: int) -> torch.Tensor:
-    """[n] each Gaussian's budget: `tolerance`, loosened by its pixel share (IMPORTANCE_QUANTILE)."""
+    """[n] each Gaussian's budget: `tolerance`, loosened by its pixel share [n] (IMPORTANCE_QUANTILE)."""
     budget = torch.full((n,), float(tolerance), dtype=torch.float64)
     if shares is None:
         return budget
@@ -200,11 +207,11 @@ def fit_within_bytes(run, frames, train, background: torch.Tensor, most: int = M
     picks = torch.linspace(0, len(train) - 1, min(SELECTION_VIEWS, len(train))).round().long().unique()
     selection = [train[int(i)] for i in picks]
     cameras = [f.camera for f in frames]
-    shares = pixel_shares(run, frames, background)
-    n = shares.shape[0]
+    weights = pixel_weights(run, frames, background)
+    n = weights.shape[1]
     kept, tried = None, []
     for tolerance in AUTO_TOLERANCES:
-        fitted = fit_splatv(run, cameras, tolerance, most, shares)
+        fitted = fit_splatv(run, cameras, tolerance, most, weights)
         over = fitted.report["records"] > MOST_RECORDS * n
         score = None if over else sum(agreement(run, fitted.model, selection, background)) / len(selection)
         tried.append({"tolerance": tolerance, "records": fitted.report["records"], "train_views_db": score})
@@ -217,21 +224,22 @@ def fit_within_bytes(run, frames, train, background: torch.Tensor, most: int = M
 
 
 def fit_splatv(
-    run, cameras=(), tolerance: float = TOLERANCE, most: int = MAX_PIECES, shares: torch.Tensor | None = None
+    run, cameras=(), tolerance: float = TOLERANCE, most: int = MAX_PIECES, weights: torch.Tensor | None = None
 ) -> Fitted:
-    """The pieces fitted to the run's motion within `tolerance` for every Gaussian, or with `shares`
-    (pixel_shares) within a budget weighted by them."""
+    """The pieces fitted to the run's motion within `tolerance` for every Gaussian, or, with `weights`
+    (pixel_weights at `cameras`), within a budget weighted by each Gaussian's pixel share and with
+    its colour weighted by how much of each view it makes."""
     times = keyframe_times(SAMPLES)
     states = align_quaternion_signs(sample_field(run, times).cpu()).double()
     n = states.shape[1]
-    budget = weighted_budget(tolerance, shares, n)
+    budget = weighted_budget(tolerance, None if weights is None else weights.sum(0), n)
     floor = (
         PIXEL_FLOOR * pixel_widths(cameras, states[SAMPLES // 2, :, POSITION].float()).clamp(max=1e30).double()
         if len(cameras)
         else torch.zeros(n, dtype=torch.float64)
     )
     opacity = torch.sigmoid(run.params["opacities"].detach().cpu().double()).flatten()
-    rgb = seen_colour(run, states[SAMPLES // 2, :, POSITION], cameras)
+    rgb = seen_colour(run, states[SAMPLES // 2, :, POSITION], cameras, weights)
     counts = torch.full((n,), 0, dtype=torch.long)
     steps = count_ladder(2, most)
     records, blended, errors = [], torch.zeros(SAMPLES, n, 3, dtype=torch.float64), torch.zeros(n, dtype=torch.float64)
@@ -278,7 +286,7 @@ def fit_splatv(
     kept = min(max(1.0 - residual / moved, 0.0), 1.0) if moved > 0 else None
     report = {
         "tolerance": tolerance,
-        "weighted": shares is not None,
+        "weighted": weights is not None,
         "pieces": {str(p): int((counts == p).sum()) for p in steps if int((counts == p).sum())},
         "records": int(model.position.shape[0]),
         "max_relative_error": float(errors.max()) if n else 0.0,

@@ -45,7 +45,7 @@ from liquidgs.bake.formats import (
     splatv_camera,
     write_plyseq,
 )
-from liquidgs.bake.pieces import MAX_PIECES, agreement, fit_splatv, fit_within_bytes, pixel_shares
+from liquidgs.bake.pieces import MAX_PIECES, agreement, fit_splatv, fit_within_bytes, pixel_weights
 from liquidgs.bake.spz import write_spz
 from liquidgs.bake.web import write_web, write_web_page
 from liquidgs.errors import ConfigError, check_finite
@@ -192,7 +192,7 @@ def export_splatv(
     if tolerance is None:
         fitted = fit_within_bytes(run, frames, dataset.train, background, pieces)
     else:
-        fitted = fit_splatv(run, [f.camera for f in frames], tolerance, pieces, pixel_shares(run, frames, background))
+        fitted = fit_splatv(run, [f.camera for f in frames], tolerance, pieces, pixel_weights(run, frames, background))
     check_finite(run.run_dir, "the fitted splatv model", vars(fitted.model))
     cameras = [splatv_camera(f.camera, f.name, SPLATV_CAMERA_WIDTH) for f in frames]
     data = splatv_bytes(fitted.model, cameras, run.source())
