@@ -512,6 +512,9 @@ def test_a_gaussian_that_makes_little_of_the_picture_takes_fewer_pieces():
     assert sorted(int(p) for p in weighted.report["pieces"])[1:] == [held]  # the large one as before
     assert len(weighted.report["pieces"]) == 2 and weighted.report["records"] < plain.report["records"]
     assert weighted.report["gaussians_over_budget"] == 0 and weighted.report["weighted"] is True
+    assert plain.report["weighted"] is False and plain.report["motion_kept_by_share"] is None
+    # the large Gaussian, held to the tolerance, keeps more of its motion than the two do together
+    assert weighted.report["motion_kept_by_share"] > weighted.motion_kept
 
 
 @pytest.mark.slow

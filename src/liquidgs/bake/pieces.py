@@ -223,6 +223,16 @@ def fit_within_bytes(run, frames, train, background: torch.Tensor, most: int = M
     return kept[1]
 
 
+def motion_kept(deviation: torch.Tensor, residual: torch.Tensor, shares: torch.Tensor | None) -> float | None:
+    """1 - squared residual / squared deviation ([S, n, 3] each), summed over the samples and the
+    Gaussians, each Gaussian weighted by its pixel share where `shares` are given; None where nothing
+    moves."""
+    weight = torch.ones(deviation.shape[1], dtype=torch.float64) if shares is None else shares.double()
+    moved = float(((deviation**2).sum((0, 2)) * weight).sum())
+    lost = float(((residual**2).sum((0, 2)) * weight).sum())
+    return min(max(1.0 - lost / moved, 0.0), 1.0) if moved > 0 else None
+
+
 def fit_splatv(
     run, cameras=(), tolerance: float = TOLERANCE, most: int = MAX_PIECES, weights: torch.Tensor | None = None
 ) -> Fitted:
@@ -255,14 +265,14 @@ def fit_splatv(
         counts[chosen] = pieces
         errors[chosen] = worst[settled]
         share = piece_opacity(opacity[chosen], window) if pieces > 1 else opacity[chosen][:, None]
-        weights = torch.zeros(SAMPLES, len(chosen), dtype=torch.float64)
+        shown = torch.zeros(SAMPLES, len(chosen), dtype=torch.float64)
         for j, (position, rotation) in enumerate(fitted):
             dt = times - centres[j]
             basis = torch.stack([dt**k for k in range(4)], dim=1)
             path = (basis @ position[:, settled].reshape(4, -1)).reshape(SAMPLES, -1, 3)
             w = window[:, j : j + 1] * share[None, :, j]
             blended[:, chosen] += w[..., None] * path
-            weights += w
+            shown += w
             records.append(
                 SplatvModel(
                     position=position[0, settled].float(),
@@ -278,12 +288,10 @@ def fit_splatv(
                     temporal=torch.tensor([float(centres[j]), scale]).expand(len(chosen), 2).clone(),
                 )
             )
-        blended[:, chosen] /= weights.clamp_min(1e-12)[..., None]
+        blended[:, chosen] /= shown.clamp_min(1e-12)[..., None]
     model = SplatvModel(*(torch.cat([getattr(r, f) for r in records]) for f in SplatvModel.__dataclass_fields__))
     deviation = states[..., POSITION] - states[..., POSITION].mean(0, keepdim=True)
-    moved = float((deviation**2).sum())
-    residual = float(((blended - states[..., POSITION]) ** 2).sum())
-    kept = min(max(1.0 - residual / moved, 0.0), 1.0) if moved > 0 else None
+    kept = motion_kept(deviation, blended - states[..., POSITION], None)
     report = {
         "tolerance": tolerance,
         "weighted": weights is not None,
@@ -291,6 +299,8 @@ def fit_splatv(
         "records": int(model.position.shape[0]),
         "max_relative_error": float(errors.max()) if n else 0.0,
         "gaussians_over_budget": int((errors > budget).sum()),
+        "motion_kept_by_share": None if weights is None else motion_kept(deviation, blended - states[..., POSITION],
+                                                                         weights.sum(0)),  # fmt: skip
     }
     return Fitted(model, kept, report)
 

@@ -209,6 +209,9 @@ def export_splatv(
             if kept is None
             else f"it keeps {100 * kept:.1f}% of the motion"
         )
+        by_share = report.get("motion_kept_by_share")
+        if kept is not None and by_share is not None:  # None: what moves shows in no view
+            kept += f" ({100 * by_share:.1f}% weighted by each Gaussian's pixel share)"
         against = "the field" if run.field is not None else "the baked scene"
         console.print(
             f"splatv: {kept}; {report['records']:,} records for {n:,} Gaussians (Gaussians x pieces: {pieces}; "
