@@ -521,20 +521,24 @@ def test_a_gaussian_that_makes_little_of_the_picture_takes_fewer_pieces():
 def test_the_export_keeps_the_closest_budget_within_four_records_a_gaussian(baked):
     """fit_within_bytes: tolerances tried loosest first until one is over 4 records per Gaussian; the
     one kept is within and the best on the train views of those within."""
-    from liquidgs.bake.pieces import AUTO_TOLERANCES, MOST_RECORDS, fit_within_bytes
+    from liquidgs.bake.pieces import AUTO_TOLERANCES, AUTO_WINDOWS, MOST_RECORDS, fit_within_bytes
 
     run = load_run(baked, "cpu")
     dataset = run.scene()
     fitted = fit_within_bytes(run, [*dataset.test, *dataset.train], dataset.train,
                               torch.tensor(dataset.background, dtype=torch.float32))  # fmt: skip
     n = run.params["means"].shape[0]
-    tried = fitted.report["tried"]
-    assert [t["tolerance"] for t in tried] == list(AUTO_TOLERANCES[: len(tried)])
-    within = [t for t in tried if t["records"] <= MOST_RECORDS * n]
-    assert all(t["train_views_db"] is not None for t in within) and within == tried[: len(within)]
-    assert len(within) == len(tried) or len(within) == len(tried) - 1  # it stops at the first over
-    best = max(within, key=lambda t: t["train_views_db"])
-    assert fitted.report["tolerance"] == best["tolerance"] and fitted.report["records"] == best["records"] <= 4 * n
+    assert {t["window"] for t in fitted.report["tried"]} == set(AUTO_WINDOWS)
+    for width in AUTO_WINDOWS:
+        tried = [t for t in fitted.report["tried"] if t["window"] == width]
+        assert [t["tolerance"] for t in tried] == list(AUTO_TOLERANCES[: len(tried)])
+        within = [t for t in tried if t["records"] <= MOST_RECORDS * n]
+        assert all(t["train_views_db"] is not None for t in within) and within == tried[: len(within)]
+        assert len(within) == len(tried) or len(within) == len(tried) - 1  # it stops at the first over
+    scored = [t for t in fitted.report["tried"] if t["train_views_db"] is not None]
+    best = max(scored, key=lambda t: t["train_views_db"])
+    assert (fitted.report["window"], fitted.report["tolerance"]) == (best["window"], best["tolerance"])
+    assert fitted.report["records"] == best["records"] <= 4 * n
 
 
 def test_splatv_fit_keeps_motion_its_model_can_hold():
