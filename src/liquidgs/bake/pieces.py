@@ -54,15 +54,19 @@ shows. The shares are skewed: on the demo's MLP 8% of the Gaussians hold half th
 the field on the demo's MLP (39.7 dB at 4.4 records per Gaussian against 36.8 at 5.4 unweighted) and
 1.0 dB on the cat's CfC; square root against the share itself: 39.7 against 37.6 dB (3.2 records)
 and 38.8 (4.2) at tolerances 0.15 and 0.1 (docs/results/sharing.md)."""
-AUTO_TOLERANCES = (0.5, 0.3, 0.25, 0.2, 0.17, 0.15, 0.12, 0.1)
-"""The budgets fit_within_bytes tries, loosest first (each tighter one takes more records). More
-records are not always closer: two overlapping pieces composite as two splats, and on hellwarrior
-0.5 (1.2 records per Gaussian) scored 44.5 dB against the field, 0.15 (5.4 records) 39.2."""
-AUTO_WINDOWS = (0.6, WINDOW)
-"""The windows fit_within_bytes tries, each with every budget. The opaque sheet's swing chose WINDOW;
-trained motion fits closer with narrower windows (the budget chosen for each, within 4 records per
-Gaussian): on the demo's MLP 39.9 dB against the field at 0.6, 39.5 at 0.7, 39.8 at 0.55; the cat's
-MLP 40.2 at 0.6, 39.4 at 0.7; hellwarrior 45.3 and 45.0; never 0.8 or wider."""
+LOOSE_TOLERANCES = (0.5, 0.3)
+"""Budgets fit_within_bytes always scores: more records are not always closer, as two overlapping
+pieces composite as two splats (on hellwarrior 0.5, 1.2 records per Gaussian, scored 44.5 dB against
+the field, 0.15 with 5.4 records 39.2)."""
+TIGHTEST_TOLERANCE = 0.05
+BISECTIONS = 4
+"""Halvings of log(tolerance) between TIGHTEST_TOLERANCE and the tightest loose budget within bytes
+that find the tightest budget within MOST_RECORDS records per Gaussian (to about 11%)."""
+AUTO_WINDOWS = (0.55, 0.6, WINDOW)
+"""The windows fit_within_bytes tries. The opaque sheet's swing chose WINDOW; trained motion fits
+closer with narrower ones (the tightest budget within 4 records per Gaussian for each): the demo's
+MLP 40.1 dB against the field at 0.55, 40.2 at 0.6 (4.1 records: over), 39.5 at 0.7; its CfC 40.2 at
+0.55, 39.3 at 0.7; the cat's MLP 39.9 at 0.55, 40.2 at 0.6, 39.4 at 0.7."""
 MOST_RECORDS = 4.0
 """The most records per Gaussian fit_within_bytes keeps: the file at most 4x the bytes of one record
 per Gaussian (the export before temporal pieces)."""
@@ -206,28 +210,47 @@ def weighted_budget(tolerance: float, shares: torch.Tensor | None, n: int) -> to
 
 
 def fit_within_bytes(run, frames, train, background: torch.Tensor, most: int = MAX_PIECES) -> Fitted:
-    """The export's fit: weighted by pixel shares over `frames`, for each of AUTO_WINDOWS at each of
-    AUTO_TOLERANCES until one takes more than MOST_RECORDS records per Gaussian; of those within, the
-    one whose render is closest to the run's on SELECTION_VIEWS of the `train` frames (where even the
-    loosest is over, that one). The report names the window and tolerance kept and each pair tried,
-    with its records and score."""
+    """The export's fit: weighted by pixel shares over `frames`, for each of AUTO_WINDOWS the
+    LOOSE_TOLERANCES and the tightest budget within MOST_RECORDS records per Gaussian (bisected); of
+    those, the one whose render is closest to the run's on SELECTION_VIEWS of the `train` frames
+    (where even the loosest is over, the first fitted). The report names the window and tolerance
+    kept and every fit tried, with its records and, where scored, its score."""
     picks = torch.linspace(0, len(train) - 1, min(SELECTION_VIEWS, len(train))).round().long().unique()
     selection = [train[int(i)] for i in picks]
     cameras = [f.camera for f in frames]
     weights = pixel_weights(run, frames, background)
     n = weights.shape[1]
     kept, tried = None, []
+
+    def attempt(width: float, tolerance: float) -> tuple[Fitted, dict] | None:
+        """The fit and its record in `tried`, where within bytes; None where over."""
+        nonlocal kept
+        fitted = fit_splatv(run, cameras, tolerance, most, weights, width)
+        record = {"window": width, "tolerance": tolerance, "records": fitted.report["records"], "train_views_db": None}
+        tried.append(record)
+        if kept is None:  # where every fit is over, the first
+            kept = (-math.inf, fitted)
+        return (fitted, record) if fitted.report["records"] <= MOST_RECORDS * n else None
+
+    def score(fitted: Fitted, record: dict) -> None:
+        nonlocal kept
+        record["train_views_db"] = sum(agreement(run, fitted.model, selection, background)) / len(selection)
+        if record["train_views_db"] > kept[0]:
+            kept = (record["train_views_db"], fitted)
+
     for width in AUTO_WINDOWS:
-        for tolerance in AUTO_TOLERANCES:
-            fitted = fit_splatv(run, cameras, tolerance, most, weights, width)
-            over = fitted.report["records"] > MOST_RECORDS * n
-            score = None if over else sum(agreement(run, fitted.model, selection, background)) / len(selection)
-            tried.append({"window": width, "tolerance": tolerance, "records": fitted.report["records"],
-                          "train_views_db": score})  # fmt: skip
-            if kept is None or score is not None and score > kept[0]:
-                kept = (score if score is not None else -math.inf, fitted)
-            if over:
-                break
+        loose = [(t, fit) for t in LOOSE_TOLERANCES if (fit := attempt(width, t)) is not None]
+        for _, fit in loose:
+            score(*fit)
+        if not loose:  # even the loosest is over
+            continue
+        (tolerance, tightest), over = min(loose, key=lambda pair: pair[0]), TIGHTEST_TOLERANCE
+        for _ in range(BISECTIONS):
+            middle = math.sqrt(tolerance * over)
+            fit = attempt(width, middle)
+            (tolerance, tightest), over = ((middle, fit), over) if fit is not None else ((tolerance, tightest), middle)
+        if tolerance not in LOOSE_TOLERANCES:
+            score(*tightest)
     kept[1].report["tried"] = tried
     return kept[1]
 
