@@ -74,8 +74,9 @@ class ExportArgs:
     """--format splatv: each piece's budget, its position within this fraction of the Gaussian's size
     (counted as at least 4 pixel widths) and its rotation within this many radians wherever it shows,
     loosened for a Gaussian by how little of the picture it makes (its pixel share). Lower keeps more
-    of the motion in more pieces. Unset: of budgets from 0.5 down to 0.1, the one closest to the run
-    on its train views that keeps the file within 4 records per Gaussian (docs/results/sharing.md)."""
+    of the motion in more pieces; pieces' windows 0.7 of their spacing. Unset: for windows of 0.55,
+    0.6 and 0.7, the budgets 0.5, 0.3 and the tightest that keeps the file within 4 records per
+    Gaussian; the fit closest to the run on its train views is written (docs/results/sharing.md)."""
     splatv_pieces: int = MAX_PIECES
     """--format splatv: the most temporal pieces per Gaussian (of 1, 2, 3, 5, 9, 17, 33: the largest
     not above it); a Gaussian still over budget at the most is written with the most."""
