@@ -216,8 +216,8 @@ def export_splatv(
         against = "the field" if run.field is not None else "the baked scene"
         console.print(
             f"splatv: {kept}; {report['records']:,} records for {n:,} Gaussians (Gaussians x pieces: {pieces}; "
-            f"budget {report['tolerance']:.3g}, weighted by each Gaussian's pixel share; windows {report['window']:g} of "
-            "the pieces' spacing); "
+            f"budget {report['tolerance']:.3g}, weighted by each Gaussian's pixel share; "
+            f"windows {report['window']:g} of the pieces' spacing); "
             f"{sum(scores) / len(scores):.1f} dB against {against} on {len(scores)} views (worst {min(scores):.1f})",
             highlight=False,
         )
