@@ -274,15 +274,20 @@ if args[:2] == ["data", "video"]:  # COLMAP's part, played: one clip refused, th
     pathlib.Path(args[args.index("--out") + 1]).mkdir()
     print("done: 80/80 frames registered, mean reprojection error 0.30 px, 7755 points")
 if args[0] == "eval":  # the scores' files, so the script's resuming can be checked
+    from liquidgs.train.run_folder.provenance import source_record
     run = pathlib.Path(args[args.index("--run") + 1])
-    (run / "eval.json").write_text(json.dumps({"masks": args[args.index("--mask") + 1]}))
+    source = source_record(run, "0123abcd", 1500, run / "checkpoint.pt")
+    (run / "eval.json").write_text(json.dumps({"masks": args[args.index("--mask") + 1], "iteration": 1500,
+                                               "finished": True, "source": source}))
     (run / "eval_per_view.json").write_text("{}")
 if args[:2] == ["experiment", "run"]:  # one finished run of the cat, one unfinished
     runs = pathlib.Path(args[args.index("--out") + 1]) / "real-clips" / "cat"
     for field, done in (("mlp", True), ("cfc", False)):
         (runs / field / "0123abcd").mkdir(parents=True, exist_ok=True)
         if done:
-            (runs / field / "0123abcd" / "results.json").write_text('{"seed": 0, "final_aligned": {"psnr": 20.0}}')
+            (runs / field / "0123abcd" / "checkpoint.pt").write_bytes(b"trained")
+            (runs / field / "0123abcd" / "results.json").write_text(
+                '{"seed": 0, "iterations": 1500, "final_aligned": {"psnr": 20.0}}')
 """
 
 
@@ -330,8 +335,8 @@ def test_the_rebuild_script_downloads_registers_each_clip_and_runs_the_spec(serv
     for motion_run in motion_runs:
         assert calls.index(["eval", "--run", str(motion_run), "--mask", "auto", "--flow-error"]) < \
             calls.index(["eval", "--run", str(motion_run), "--mask", masks])  # fmt: skip
-        assert json.loads((motion_run / "eval-auto.json").read_text()) == {"masks": "auto"}
-        assert json.loads((motion_run / "eval.json").read_text()) == {"masks": masks}
+        assert json.loads((motion_run / "eval-auto.json").read_text())["masks"] == "auto"
+        assert json.loads((motion_run / "eval.json").read_text())["masks"] == masks
         assert (motion_run / "eval-auto_per_view.json").is_file() and (motion_run / "eval_per_view.json").is_file()
     reports = [experiment, without, *(str(bench / f"experiment-{spec}") for spec in motion)]
     assert calls[21:] == [["experiment", "report", folder] for folder in reports]
