@@ -219,13 +219,14 @@ def fit_within_bytes(run, frames, train, background: torch.Tensor, most: int = M
     selection = [train[int(i)] for i in picks]
     cameras = [f.camera for f in frames]
     weights = pixel_weights(run, frames, background)
+    motion = sampled_motion(run, cameras, weights)  # the field sampled once for every fit below
     n = weights.shape[1]
     kept, tried = None, []
 
     def attempt(width: float, tolerance: float) -> tuple[Fitted, dict] | None:
         """The fit and its record in `tried`, where within bytes; None where over."""
         nonlocal kept
-        fitted = fit_splatv(run, cameras, tolerance, most, weights, width)
+        fitted = fit_splatv(run, cameras, tolerance, most, weights, width, motion)
         record = {"window": width, "tolerance": tolerance, "records": fitted.report["records"], "train_views_db": None}
         tried.append(record)
         if kept is None:  # where every fit is over, the first
@@ -265,6 +266,30 @@ def motion_kept(deviation: torch.Tensor, residual: torch.Tensor, shares: torch.T
     return min(max(1.0 - lost / moved, 0.0), 1.0) if moved > 0 else None
 
 
+@dataclass
+class SampledMotion:
+    """What fit_splatv reads of a run before choosing pieces, the same for every budget and window."""
+
+    times: torch.Tensor  # [S]
+    states: torch.Tensor  # [S, n, channels] float64, quaternion signs aligned
+    floor: torch.Tensor  # [n] PIXEL_FLOOR pixel widths in the camera that sees each finest
+    opacity: torch.Tensor  # [n]
+    rgb: torch.Tensor  # [n, 3] seen_colour
+
+
+def sampled_motion(run, cameras=(), weights: torch.Tensor | None = None) -> SampledMotion:
+    times = keyframe_times(SAMPLES)
+    states = align_quaternion_signs(sample_field(run, times).cpu()).double()
+    middle = states[SAMPLES // 2, :, POSITION]
+    floor = (
+        PIXEL_FLOOR * pixel_widths(cameras, middle.float()).clamp(max=1e30).double()
+        if len(cameras)
+        else torch.zeros(states.shape[1], dtype=torch.float64)
+    )
+    opacity = torch.sigmoid(run.params["opacities"].detach().cpu().double()).flatten()
+    return SampledMotion(times, states, floor, opacity, seen_colour(run, middle, cameras, weights))
+
+
 def fit_splatv(
     run,
     cameras=(),
@@ -272,22 +297,18 @@ def fit_splatv(
     most: int = MAX_PIECES,
     weights: torch.Tensor | None = None,
     width: float = WINDOW,
+    motion: SampledMotion | None = None,
 ) -> Fitted:
     """The pieces fitted to the run's motion within `tolerance` for every Gaussian, or, with `weights`
     (pixel_weights at `cameras`), within a budget weighted by each Gaussian's pixel share and with
     its colour weighted by how much of each view it makes; pieces' windows `width` times the
-    spacing between their centres."""
-    times = keyframe_times(SAMPLES)
-    states = align_quaternion_signs(sample_field(run, times).cpu()).double()
+    spacing between their centres. `motion`: sampled_motion(run, cameras, weights), where the caller
+    fits the same run more than once."""
+    motion = motion if motion is not None else sampled_motion(run, cameras, weights)
+    times, states, floor, opacity, rgb = motion.times, motion.states, motion.floor, motion.opacity, motion.rgb
     n = states.shape[1]
-    budget = weighted_budget(tolerance, None if weights is None else weights.sum(0), n)
-    floor = (
-        PIXEL_FLOOR * pixel_widths(cameras, states[SAMPLES // 2, :, POSITION].float()).clamp(max=1e30).double()
-        if len(cameras)
-        else torch.zeros(n, dtype=torch.float64)
-    )
-    opacity = torch.sigmoid(run.params["opacities"].detach().cpu().double()).flatten()
-    rgb = seen_colour(run, states[SAMPLES // 2, :, POSITION], cameras, weights)
+    shares = None if weights is None else weights.sum(0)
+    budget = weighted_budget(tolerance, shares, n)
     counts = torch.full((n,), 0, dtype=torch.long)
     steps = count_ladder(2, most)
     records, blended, errors = [], torch.zeros(SAMPLES, n, 3, dtype=torch.float64), torch.zeros(n, dtype=torch.float64)
@@ -329,7 +350,8 @@ def fit_splatv(
         blended[:, chosen] /= shown.clamp_min(1e-12)[..., None]
     model = SplatvModel(*(torch.cat([getattr(r, f) for r in records]) for f in SplatvModel.__dataclass_fields__))
     deviation = states[..., POSITION] - states[..., POSITION].mean(0, keepdim=True)
-    kept = motion_kept(deviation, blended - states[..., POSITION], None)
+    residual = blended - states[..., POSITION]
+    kept = motion_kept(deviation, residual, None)
     report = {
         "tolerance": tolerance,
         "window": width,
@@ -338,8 +360,7 @@ def fit_splatv(
         "records": int(model.position.shape[0]),
         "max_relative_error": float(errors.max()) if n else 0.0,
         "gaussians_over_budget": int((errors > budget).sum()),
-        "motion_kept_by_share": None if weights is None else motion_kept(deviation, blended - states[..., POSITION],
-                                                                         weights.sum(0)),  # fmt: skip
+        "motion_kept_by_share": None if shares is None else motion_kept(deviation, residual, shares),
     }
     return Fitted(model, kept, report)
 
