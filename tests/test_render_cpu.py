@@ -93,15 +93,24 @@ def test_absgrad_matches_the_torch_backend():
 
 
 @pytest.mark.parametrize("tile_size", [4, 8, 16])
-def test_counting_sort_bins_equal_the_torch_bins(tile_size):
+@pytest.mark.parametrize("huge", [False, True])
+def test_counting_sort_bins_equal_the_torch_bins(tile_size, huge):
+    """Also with Gaussians of radii in the millions of pixels (a diverging run's): their boxes are
+    the whole image, and the kernel's room for the pairs is bounded by the image, not the radii."""
     scene = random_scene(500, width=61, height=45, seed=6)
+    if huge:
+        scene["scales"][:20] *= 1e6
     projection = project_gaussians(
         scene["means"], scene["quats"], scene["scales"], scene["opacities"], scene["viewmat"], scene["K"],
         61, 45, 0.01, 1e10, 0.3,
     )  # fmt: skip
-    args = (projection.means2d, projection.radii_xy, projection.depths, 61, 45, tile_size)
+    args = (
+        projection.means2d, projection.conics, scene["opacities"], projection.radii_xy, projection.depths, 61, 45,
+        tile_size,
+    )  # fmt: skip
     ours, reference = cpu_backend.bin_gaussians_cpu(*args), bin_gaussians(*args)
     assert reference.n_pairs > 500
+    assert not huge or projection.radii_xy.max() > 1_000_000
     for name in ("gaussian_ids", "tile_starts", "tile_counts"):
         assert torch.equal(getattr(ours, name), getattr(reference, name)), name
 

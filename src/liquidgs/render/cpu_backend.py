@@ -7,6 +7,7 @@ backend does the same work, and the first time that happens one line on stderr s
 from __future__ import annotations
 
 import ctypes
+import math
 from pathlib import Path
 
 import torch
@@ -24,7 +25,7 @@ from liquidgs.render.projection import (
     Projection,
     project_gaussians,
 )
-from liquidgs.render.tiles import TileBins, tile_boxes
+from liquidgs.render.tiles import FOOTPRINT_MARGIN, TileBins
 from liquidgs.render.torch_backend import TiledStages, render_tiled, view_colors
 from liquidgs.sh import num_sh_bases
 
@@ -37,6 +38,7 @@ DEFINES = (
     ("LIQUIDGS_MAX_EXTENT_SIGMAS", MAX_EXTENT_SIGMAS),
     ("LIQUIDGS_FRUSTUM_MARGIN", FRUSTUM_MARGIN),
     ("LIQUIDGS_MAX_EXTRA_FEATURES", MAX_EXTRA_FEATURES),
+    ("LIQUIDGS_FOOTPRINT_MARGIN", FOOTPRINT_MARGIN),
 )
 # Gradient row per Gaussian: means2d (2), conics (3), opacity (1), |means2d| (2), then the features.
 ROW_HEAD = 8
@@ -53,8 +55,10 @@ _BACKWARD_ARGS = [POINTER] * 8 + [INT64, INT, INT, INT, INT, INT] + [POINTER] * 
 
 
 def _declare(library: ctypes.CDLL) -> None:
-    library.liquidgs_bin_tiles.argtypes = [POINTER, POINTER, INT64, INT, INT64, POINTER, POINTER, POINTER]
     for suffix, real in (("f32", ctypes.c_float), ("f64", ctypes.c_double)):
+        binning = getattr(library, f"liquidgs_bin_gaussians_{suffix}")
+        binning.argtypes = [POINTER] * 5 + [INT64, INT, INT64, INT64, INT64] + [POINTER] * 3
+        binning.restype = INT64
         getattr(library, f"liquidgs_composite_forward_{suffix}").argtypes = _FORWARD_ARGS
         getattr(library, f"liquidgs_composite_backward_{suffix}").argtypes = _BACKWARD_ARGS
         camera = [INT64, POINTER, INT, INT, real, real, real]
@@ -241,22 +245,35 @@ def _common_arguments(means2d, conics, opacities, features, bins: TileBins, tile
 
 @torch.no_grad()
 def bin_gaussians_cpu(
-    means2d: Tensor, radii_xy: Tensor, depths: Tensor, width: int, height: int, tile_size: int
+    means2d: Tensor,
+    conics: Tensor,
+    opacities: Tensor,
+    radii_xy: Tensor,
+    depths: Tensor,
+    width: int,
+    height: int,
+    tile_size: int,
 ) -> TileBins:
-    """tiles.bin_gaussians with a counting sort in the kernel library: the same bins, without sorting pairs."""
-    boxes = tile_boxes(means2d, radii_xy, depths, width, height, tile_size)
-    box = torch.cat([boxes.tile_min, boxes.tile_max], dim=1).contiguous()
-    span = boxes.tile_max - boxes.tile_min
-    n_pairs = int((span[:, 0] * span[:, 1]).sum())
-    n_tiles = boxes.tiles_x * boxes.tiles_y
-    tile_starts = torch.empty(n_tiles, dtype=torch.int64)
-    tile_counts = torch.empty(n_tiles, dtype=torch.int64)
-    gaussian_ids = torch.empty(n_pairs, dtype=torch.int64)
-    _library().liquidgs_bin_tiles(
-        pointer(boxes.depth_order), pointer(box), int(boxes.depth_order.numel()), boxes.tiles_x, n_tiles,
-        pointer(tile_starts), pointer(tile_counts), pointer(gaussian_ids),
+    """tiles.bin_gaussians in the kernel library (a radix sort by depth, a counting sort by tile):
+    the same bins, without a torch operation per step."""
+    tiles_x, tiles_y = math.ceil(width / tile_size), math.ceil(height / tile_size)
+    inputs = [t.detach().to(means2d.dtype).contiguous() for t in (means2d, conics, opacities)]
+    radii = radii_xy.to(torch.int32).contiguous()
+    depths = depths.detach().to(means2d.dtype).contiguous()
+    tile_starts = torch.empty(tiles_x * tiles_y, dtype=torch.int64)
+    tile_counts = torch.empty(tiles_x * tiles_y, dtype=torch.int64)
+    # A box spans at most 2 * radius / tile_size + 2 tiles each way (+1 for the divisions' rounding),
+    # and no more than the image has.
+    spans = torch.minimum((2 * radii.long()) // tile_size + 3, torch.tensor([tiles_x, tiles_y]))
+    capacity = int(spans.prod(dim=1).sum())
+    gaussian_ids = torch.empty(capacity, dtype=torch.int64)
+    n_pairs = getattr(_library(), f"liquidgs_bin_gaussians_{native.suffix(means2d)}")(
+        *(pointer(t) for t in inputs), pointer(radii), pointer(depths), means2d.shape[0], tile_size, tiles_x, tiles_y,
+        capacity, pointer(tile_starts), pointer(tile_counts), pointer(gaussian_ids),
     )  # fmt: skip
-    return TileBins(tile_size, boxes.tiles_x, boxes.tiles_y, gaussian_ids, tile_starts, tile_counts)
+    if n_pairs > capacity:  # the kernel wrote none of them: a broken bound, not a render
+        raise RuntimeError(f"binning found {n_pairs} tile pairs, over their bound {capacity}")
+    return TileBins(tile_size, tiles_x, tiles_y, gaussian_ids[:n_pairs], tile_starts, tile_counts)
 
 
 def composite_tiles_cpu(

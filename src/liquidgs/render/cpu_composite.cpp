@@ -13,12 +13,15 @@
 // types only, no torch headers, so it compiles in about a second with g++ or clang++.
 
 #if !defined(LIQUIDGS_MAX_ALPHA) || !defined(LIQUIDGS_ALPHA_THRESHOLD) || !defined(LIQUIDGS_MIN_TRANSMITTANCE) || \
-    !defined(LIQUIDGS_MAX_EXTENT_SIGMAS) || !defined(LIQUIDGS_FRUSTUM_MARGIN) || !defined(LIQUIDGS_MAX_EXTRA_FEATURES)
+    !defined(LIQUIDGS_MAX_EXTENT_SIGMAS) || !defined(LIQUIDGS_FRUSTUM_MARGIN) || !defined(LIQUIDGS_MAX_EXTRA_FEATURES) || \
+    !defined(LIQUIDGS_FOOTPRINT_MARGIN)
 #error "built by liquidgs/render/cpu_backend.py, which passes the constants of the torch backend (DEFINES)"
 #endif
 
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <cstring>
 #include <vector>
 #ifdef _OPENMP
 #include <omp.h>
@@ -285,28 +288,162 @@ void backward(const typename P::S* means2d, const typename P::S* conics, const t
     }
 }
 
-// Counting sort of (tile, Gaussian) pairs by tile; Gaussians arrive front to back, so each
-// tile's list stays in depth order without a comparison sort.
-void bin_tiles(const int64_t* depth_order, const int64_t* tile_box, int64_t n_visible, int tiles_x,
-               int64_t n_tiles, int64_t* tile_starts, int64_t* tile_counts, int64_t* gaussian_ids) {
+// tiles.py's footprint_columns, in the same order of operations and without fused multiply-adds
+// (torch rounds each operation), so both keep the same tiles: the tile columns [first, last] of a
+// tile row holding a pixel centre where a Gaussian's alpha can reach the threshold (-inf, inf
+// where the conic is not positive definite). What does not depend on the row is found once.
+#if defined(__clang__)
+#pragma clang fp contract(off)
+#elif defined(__GNUC__)
+#pragma GCC push_options
+#pragma GCC optimize("fp-contract=off")
+#endif
+struct Footprint {
+    double mx, my, b, inverse_a, reach_sq, det, reach_v, extreme_v;
+    bool positive;
+    template <typename S> Footprint(const S* mean, const S* conic, S opacity) : mx(mean[0]), my(mean[1]), b(conic[1]) {
+        const double a = conic[0], c = conic[2];
+        const double cut = std::max(std::log(double(opacity) / double(LIQUIDGS_ALPHA_THRESHOLD)), 0.0) +
+                           double(LIQUIDGS_FOOTPRINT_MARGIN);
+        inverse_a = 1.0 / a;
+        reach_sq = 2.0 * cut * a;
+        det = a * c - b * b;
+        reach_v = std::sqrt(reach_sq / det);
+        extreme_v = -b * std::sqrt(2.0 * cut / (det * c));
+        positive = a > 0 && c > 0 && det > 0;
+    }
+    double half_width(double v) const { return std::sqrt(std::max(reach_sq - det * v * v, 0.0)); }
+    void columns(int64_t row, int tile_size, double inverse_tile, double* first, double* last) const {
+        const double band_low = double(row) * tile_size + 0.5 - my;
+        const double band_high = band_low + (tile_size - 1);
+        const double low = std::max(band_low, -reach_v), high = std::min(band_high, reach_v);
+        const double right_v = std::min(std::max(extreme_v, low), high);
+        const double left_v = std::min(std::max(-extreme_v, low), high);
+        const double right = mx + (-b * right_v + half_width(right_v)) * inverse_a;
+        const double left = mx + (-b * left_v - half_width(left_v)) * inverse_a;
+        *first = std::ceil((left + 0.5) * inverse_tile - 1.0);
+        *last = low <= high ? std::floor((right - 0.5) * inverse_tile) : *first - 1;
+        if (!(positive && std::isfinite(*first) && std::isfinite(*last))) *first = -INFINITY, *last = INFINITY;
+    }
+};
+
+// The unsigned integer of a float's width, and a float's bits as one that orders as the float does
+// (negative floats reversed below the positive ones; -0 taken as +0, which torch's sort ties with it).
+template <typename S> struct OrderedBits;
+template <> struct OrderedBits<float> {
+    using U = uint32_t;
+};
+template <> struct OrderedBits<double> {
+    using U = uint64_t;
+};
+template <typename S> typename OrderedBits<S>::U ordered_bits(S value) {
+    using U = typename OrderedBits<S>::U;
+    constexpr U sign = U(1) << (8 * sizeof(U) - 1);
+    U bits;
+    const S zeroed = value == S(0) ? S(0) : value;
+    std::memcpy(&bits, &zeroed, sizeof bits);
+    return bits & sign ? ~bits : bits | sign;
+}
+
+// tiles.py's tile_boxes: the visible Gaussians (radii_xy x > 0) front to back - a stable radix
+// sort of the depths, so equal depths keep the lower id first as torch's stable argsort does - and
+// the tiles [x0, x1) x [y0, y1) their box touches, with torch's operations in S: centre and radius
+// divided by the tile size, floor / ceil, clamped to the image's tiles.
+template <typename S>
+void tile_boxes(const S* means2d, const int32_t* radii_xy, const S* depths, int64_t n, int tile_size, int64_t tiles_x,
+                int64_t tiles_y, std::vector<int64_t>& order, std::vector<int64_t>& boxes) {
+    using U = typename OrderedBits<S>::U;
+    std::vector<U> keys, sorted_keys;
+    order.clear();
+    for (int64_t i = 0; i < n; ++i)
+        if (radii_xy[2 * i] > 0) {
+            order.push_back(i);
+            keys.push_back(ordered_bits(depths[i]));
+        }
+    const size_t visible = order.size();
+    std::vector<int64_t> sorted(visible);
+    sorted_keys.resize(visible);
+    for (int shift = 0; shift < int(8 * sizeof(U)); shift += 8) {
+        size_t starts[257] = {};
+        for (size_t i = 0; i < visible; ++i) ++starts[((keys[i] >> shift) & 255) + 1];
+        if (*std::max_element(starts + 1, starts + 257) == visible) continue;  // one digit: nothing moves
+        for (int digit = 0; digit < 256; ++digit) starts[digit + 1] += starts[digit];
+        for (size_t i = 0; i < visible; ++i) {
+            const size_t to = starts[(keys[i] >> shift) & 255]++;
+            sorted[to] = order[i];
+            sorted_keys[to] = keys[i];
+        }
+        order.swap(sorted);
+        keys.swap(sorted_keys);
+    }
+    boxes.resize(4 * visible);
+    const auto clamped = [](S value, int64_t upper) {
+        return value < S(0) ? int64_t(0) : value > S(upper) ? upper : int64_t(value);
+    };
+    for (size_t v = 0; v < visible; ++v) {
+        const int64_t id = order[v];
+        const S cx = means2d[2 * id] / S(tile_size), cy = means2d[2 * id + 1] / S(tile_size);
+        const S rx = S(radii_xy[2 * id]) / S(tile_size), ry = S(radii_xy[2 * id + 1]) / S(tile_size);
+        boxes[4 * v] = clamped(std::floor(cx - rx), tiles_x);
+        boxes[4 * v + 1] = clamped(std::floor(cy - ry), tiles_y);
+        boxes[4 * v + 2] = clamped(std::ceil(cx + rx), tiles_x);
+        boxes[4 * v + 3] = clamped(std::ceil(cy + ry), tiles_y);
+    }
+}
+
+// tiles.py's bin_gaussians: each visible Gaussian in the tiles of its box that footprint_columns
+// keeps, the pairs counting-sorted by tile (the Gaussians arrive front to back, so each tile's list
+// stays in depth order without a comparison sort). Returns the number of pairs; where it is over
+// `capacity`, gaussian_ids is left unwritten and the caller asks again with room for them.
+template <typename S>
+int64_t bin_gaussians(const S* means2d, const S* conics, const S* opacities, const int32_t* radii_xy,
+                      const S* depths, int64_t n, int tile_size, int64_t tiles_x, int64_t tiles_y, int64_t capacity,
+                      int64_t* tile_starts, int64_t* tile_counts, int64_t* gaussian_ids) {
+    std::vector<int64_t> order, boxes;
+    tile_boxes(means2d, radii_xy, depths, n, tile_size, tiles_x, tiles_y, order, boxes);
+    const int64_t visible = int64_t(order.size()), n_tiles = tiles_x * tiles_y;
+    // Each Gaussian's columns [x0, x1) per row of its box, found once for the count and the fill.
+    std::vector<int64_t> first_row(visible + 1, 0);
+    for (int64_t v = 0; v < visible; ++v) first_row[v + 1] = first_row[v] + boxes[4 * v + 3] - boxes[4 * v + 1];
+    std::vector<int64_t> columns(2 * first_row[visible]);
+    const double inverse_tile = 1.0 / tile_size;
     for (int64_t t = 0; t < n_tiles; ++t) tile_counts[t] = 0;
-    for (int64_t v = 0; v < n_visible; ++v) {
-        const int64_t* box = tile_box + 4 * v;  // x_min, y_min, x_max, y_max (exclusive)
-        for (int64_t y = box[1]; y < box[3]; ++y)
-            for (int64_t x = box[0]; x < box[2]; ++x) ++tile_counts[y * tiles_x + x];
+    for (int64_t v = 0; v < visible; ++v) {
+        const int64_t* box = boxes.data() + 4 * v;  // x_min, y_min, x_max, y_max (exclusive)
+        const int64_t id = order[v];
+        const Footprint footprint(means2d + 2 * id, conics + 3 * id, opacities[id]);
+        for (int64_t y = box[1]; y < box[3]; ++y) {
+            double first, last;
+            footprint.columns(y, tile_size, inverse_tile, &first, &last);
+            const int64_t x0 = first > double(box[0]) ? int64_t(first) : box[0];
+            const int64_t x1 = last + 1 < double(box[2]) ? int64_t(last) + 1 : box[2];
+            int64_t* row = columns.data() + 2 * (first_row[v] + y - box[1]);
+            row[0] = x0;
+            row[1] = x1;
+            for (int64_t x = x0; x < x1; ++x) ++tile_counts[y * tiles_x + x];
+        }
     }
     int64_t offset = 0;
     for (int64_t t = 0; t < n_tiles; ++t) {
         tile_starts[t] = offset;
         offset += tile_counts[t];
     }
+    if (offset > capacity) return offset;
     std::vector<int64_t> next(tile_starts, tile_starts + n_tiles);
-    for (int64_t v = 0; v < n_visible; ++v) {
-        const int64_t* box = tile_box + 4 * v;
-        for (int64_t y = box[1]; y < box[3]; ++y)
-            for (int64_t x = box[0]; x < box[2]; ++x) gaussian_ids[next[y * tiles_x + x]++] = depth_order[v];
+    for (int64_t v = 0; v < visible; ++v) {
+        const int64_t* box = boxes.data() + 4 * v;
+        for (int64_t y = box[1]; y < box[3]; ++y) {
+            const int64_t* row = columns.data() + 2 * (first_row[v] + y - box[1]);
+            for (int64_t x = row[0]; x < row[1]; ++x) gaussian_ids[next[y * tiles_x + x]++] = order[v];
+        }
     }
+    return offset;
 }
+#if defined(__clang__)
+#pragma clang fp contract(on)
+#elif defined(__GNUC__)
+#pragma GCC pop_options
+#endif
 
 void set_threads(int threads) {
 #ifdef _OPENMP
@@ -339,12 +476,15 @@ int liquidgs_max_features() { return kMaxFeatures; }
 
 int liquidgs_max_tile_size() { return kMaxTileSize; }
 
-void liquidgs_bin_tiles(const int64_t* depth_order, const int64_t* tile_box, int64_t n_visible, int tiles_x,
-                        int64_t n_tiles, int64_t* tile_starts, int64_t* tile_counts, int64_t* gaussian_ids) {
-    bin_tiles(depth_order, tile_box, n_visible, tiles_x, n_tiles, tile_starts, tile_counts, gaussian_ids);
-}
 
 #define LIQUIDGS_EXPORT(P, suffix)                                                                                  \
+    int64_t liquidgs_bin_gaussians_##suffix(                                                                        \
+        const P::S* means2d, const P::S* conics, const P::S* opacities, const int32_t* radii_xy, const P::S* depths, \
+        int64_t n, int tile_size, int64_t tiles_x, int64_t tiles_y, int64_t capacity, int64_t* tile_starts,        \
+        int64_t* tile_counts, int64_t* gaussian_ids) {                                                              \
+        return bin_gaussians(means2d, conics, opacities, radii_xy, depths, n, tile_size, tiles_x, tiles_y, capacity, \
+                             tile_starts, tile_counts, gaussian_ids);                                               \
+    }                                                                                                               \
     void liquidgs_composite_forward_##suffix(                                                                       \
         const P::S* means2d, const P::S* conics, const P::S* opacities, const P::S* features,                     \
         const int64_t* gaussian_ids, const int64_t* tile_starts, const int64_t* tile_counts,                      \

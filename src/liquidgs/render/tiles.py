@@ -8,6 +8,12 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
+from liquidgs.render.projection import ALPHA_THRESHOLD
+
+FOOTPRINT_MARGIN = 1e-3
+"""Added to each Gaussian's cut-off ln(opacity / ALPHA_THRESHOLD) before tiles are tested against
+its ellipse, so no rounding in the float32 composite meets a fragment whose tile the test dropped."""
+
 
 @dataclass
 class TileChunk:
@@ -64,16 +70,53 @@ def tile_boxes(means2d: Tensor, radii_xy: Tensor, depths: Tensor, width: int, he
     return TileBoxes(tiles_x, tiles_y, depth_order, tile_min, tile_max)
 
 
+def footprint_columns(
+    means2d: Tensor, conics: Tensor, opacities: Tensor, rows: Tensor, tile_size: int
+) -> tuple[Tensor, Tensor]:
+    """The tile columns [first, last] (float64) of tile row `rows` [P] holding a pixel centre where
+    each Gaussian (means2d [P,2], conics [P,3], opacities [P]) can reach ALPHA_THRESHOLD: the ellipse
+    0.5 a u^2 + b u v + 0.5 c v^2 <= ln(opacity / threshold) + FOOTPRINT_MARGIN (u, v: offsets
+    from the mean) over the band of the row's pixel centres - Speedy-Splat's exact tile test, a row
+    at a time. A conic that is not positive definite gets every column (-inf, inf). Only tiles in
+    which no fragment is drawn are left out, so the image is the one the whole box gives; the
+    compiled binning (cpu_composite.cpp) computes the same in the same order."""
+    mx, my = means2d[:, 0].double(), means2d[:, 1].double()
+    a, b, c = conics.double().unbind(1)
+    cut = torch.log(opacities.double() / ALPHA_THRESHOLD).clamp_min(0.0) + FOOTPRINT_MARGIN
+    inverse_a, reach_sq, det = 1.0 / a, 2.0 * cut * a, a * c - b * b
+    reach_v = torch.sqrt(reach_sq / det)  # the ellipse's half height
+    extreme_v = -b * torch.sqrt(2.0 * cut / (det * c))  # where it reaches furthest right
+    band_low = rows.double() * tile_size + 0.5 - my
+    band_high = band_low + (tile_size - 1)
+    low, high = torch.maximum(band_low, -reach_v), torch.minimum(band_high, reach_v)
+
+    def half_width(v: Tensor) -> Tensor:
+        return torch.sqrt((reach_sq - det * v * v).clamp_min(0.0))
+
+    right_v = torch.minimum(torch.maximum(extreme_v, low), high)
+    left_v = torch.minimum(torch.maximum(-extreme_v, low), high)
+    right = mx + (-b * right_v + half_width(right_v)) * inverse_a
+    left = mx + (-b * left_v - half_width(left_v)) * inverse_a
+    inverse_tile = 1.0 / tile_size
+    first = torch.ceil((left + 0.5) * inverse_tile - 1.0)
+    last = torch.where(low <= high, torch.floor((right - 0.5) * inverse_tile), first - 1)  # no band: no column
+    exact = (a > 0) & (c > 0) & (det > 0) & torch.isfinite(first) & torch.isfinite(last)
+    return torch.where(exact, first, -math.inf), torch.where(exact, last, math.inf)
+
+
 @torch.no_grad()
 def bin_gaussians(
     means2d: Tensor,
+    conics: Tensor,
+    opacities: Tensor,
     radii_xy: Tensor,
     depths: Tensor,
     width: int,
     height: int,
     tile_size: int,
 ) -> TileBins:
-    """Bin visible Gaussians (radii > 0) to the tiles their bounding box touches, as gsplat does."""
+    """Bin visible Gaussians (radii > 0) to the tiles of their bounding box (as gsplat does) that
+    hold a pixel their alpha can reach (footprint_columns)."""
     boxes = tile_boxes(means2d, radii_xy, depths, width, height, tile_size)
     device = means2d.device
     span = boxes.tile_max - boxes.tile_min
@@ -87,7 +130,10 @@ def bin_gaussians(
     owner_span_x = span[pair_owner, 0]
     tile_x = boxes.tile_min[pair_owner, 0] + local % owner_span_x
     tile_y = boxes.tile_min[pair_owner, 1] + local // owner_span_x
-    tile_of_pair = tile_y * boxes.tiles_x + tile_x
+    ids = boxes.depth_order[pair_owner]
+    first, last = footprint_columns(means2d[ids], conics[ids], opacities[ids], tile_y, tile_size)
+    kept = (tile_x >= first) & (tile_x <= last)
+    pair_owner, tile_of_pair = pair_owner[kept], (tile_y * boxes.tiles_x + tile_x)[kept]
 
     order = torch.argsort(tile_of_pair * max(n_visible, 1) + pair_owner)
     gaussian_ids = boxes.depth_order[pair_owner[order]]

@@ -58,7 +58,9 @@ def render_tiled(
         means2d.retain_grad()
     rgb_colors = stages.view_colors(colors, options.sh_degree, means, viewmat)
     channels = [rgb_colors, projection.depths[:, None]] + ([] if features is None else [features])
-    bins = stages.bin(means2d, projection.radii_xy, projection.depths, width, height, options.tile_size)
+    bins = stages.bin(
+        means2d, projection.conics, opacities, projection.radii_xy, projection.depths, width, height, options.tile_size
+    )
     image, alpha = stages.composite(
         means2d, projection.conics, opacities, torch.cat(channels, dim=1), bins, width, height, options.absgrad,
         options.chunk_elements,
