@@ -407,7 +407,7 @@ int64_t bin_gaussians(const S* means2d, const S* conics, const S* opacities, con
     for (int64_t v = 0; v < visible; ++v) first_row[v + 1] = first_row[v] + boxes[4 * v + 3] - boxes[4 * v + 1];
     std::vector<int64_t> columns(2 * first_row[visible]);
     const double inverse_tile = 1.0 / tile_size;
-    for (int64_t t = 0; t < n_tiles; ++t) tile_counts[t] = 0;
+    // The columns first, the counts after: rows without a branch on the columns overlap.
     for (int64_t v = 0; v < visible; ++v) {
         const int64_t* box = boxes.data() + 4 * v;  // x_min, y_min, x_max, y_max (exclusive)
         const int64_t id = order[v];
@@ -415,12 +415,17 @@ int64_t bin_gaussians(const S* means2d, const S* conics, const S* opacities, con
         for (int64_t y = box[1]; y < box[3]; ++y) {
             double first, last;
             footprint.columns(y, tile_size, inverse_tile, &first, &last);
-            const int64_t x0 = first > double(box[0]) ? int64_t(first) : box[0];
-            const int64_t x1 = last + 1 < double(box[2]) ? int64_t(last) + 1 : box[2];
             int64_t* row = columns.data() + 2 * (first_row[v] + y - box[1]);
-            row[0] = x0;
-            row[1] = x1;
-            for (int64_t x = x0; x < x1; ++x) ++tile_counts[y * tiles_x + x];
+            row[0] = first > double(box[0]) ? int64_t(first) : box[0];
+            row[1] = last + 1 < double(box[2]) ? int64_t(last) + 1 : box[2];
+        }
+    }
+    for (int64_t t = 0; t < n_tiles; ++t) tile_counts[t] = 0;
+    for (int64_t v = 0; v < visible; ++v) {
+        const int64_t* box = boxes.data() + 4 * v;
+        for (int64_t y = box[1]; y < box[3]; ++y) {
+            const int64_t* row = columns.data() + 2 * (first_row[v] + y - box[1]);
+            for (int64_t x = row[0]; x < row[1]; ++x) ++tile_counts[y * tiles_x + x];
         }
     }
     int64_t offset = 0;
