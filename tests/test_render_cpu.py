@@ -92,7 +92,7 @@ def test_absgrad_matches_the_torch_backend():
         torch.testing.assert_close(got, want, rtol=1e-10, atol=1e-12)
 
 
-@pytest.mark.parametrize("tile_size", [4, 8, 16])
+@pytest.mark.parametrize("tile_size", [4, 8, 12, 16])
 @pytest.mark.parametrize("huge", [False, True])
 def test_counting_sort_bins_equal_the_torch_bins(tile_size, huge):
     """Also with Gaussians of radii in the millions of pixels (a diverging run's): their boxes are
