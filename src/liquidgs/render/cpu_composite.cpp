@@ -394,7 +394,7 @@ void tile_boxes(const S* means2d, const int32_t* radii_xy, const S* depths, int6
 // tiles.py's bin_gaussians: each visible Gaussian in the tiles of its box that footprint_columns
 // keeps, the pairs counting-sorted by tile (the Gaussians arrive front to back, so each tile's list
 // stays in depth order without a comparison sort). Returns the number of pairs; where it is over
-// `capacity`, gaussian_ids is left unwritten and the caller asks again with room for them.
+// `capacity` (the caller's bound on them), gaussian_ids is left unwritten.
 template <typename S>
 int64_t bin_gaussians(const S* means2d, const S* conics, const S* opacities, const int32_t* radii_xy,
                       const S* depths, int64_t n, int tile_size, int64_t tiles_x, int64_t tiles_y, int64_t capacity,
