@@ -10,7 +10,9 @@ import torch
 from gsplat.cuda._torch_impl import _fully_fused_projection, _quat_scale_to_covar_preci, _spherical_harmonics
 
 from liquidgs.cameras import focal_from_fov
-from liquidgs.render import RenderOutput, cpu_backend, rasterize
+from liquidgs.render import RenderOutput, cpu_backend, rasterize, tiles
+from liquidgs.render.composite import composite_tiles
+from liquidgs.render.projection import ALPHA_THRESHOLD, project_gaussians
 from liquidgs.render.reference import composite_dense
 
 
@@ -416,8 +418,6 @@ def test_torch_backend_runs_on_cuda_like_on_cpu():
 def box_and_footprint_bins(scene: dict, tile_size: int, monkeypatch) -> tuple:
     """The scene's projection, its bins as the torch backend makes them, and the bins of the whole
     bounding boxes (the footprint test switched off: every column of every row)."""
-    from liquidgs.render import tiles
-    from liquidgs.render.projection import project_gaussians
 
     projection = project_gaussians(
         scene["means"], scene["quats"], scene["scales"], scene["opacities"], scene["viewmat"], scene["K"],
@@ -437,7 +437,6 @@ def test_the_footprint_test_drops_only_tiles_where_nothing_is_drawn(tile_size, m
     """Tiles of a Gaussian's box that its ellipse of alpha >= 1/255 misses are left out of its bins:
     a fifth or more of the pairs here at tile size 4 (35-45% on trained scenes), and no pixel of a dropped tile is one
     the Gaussian would have drawn (alpha from the conic in float64, as the composite computes it)."""
-    from liquidgs.render.projection import ALPHA_THRESHOLD
 
     scene = random_scene(400, width=61, height=45, seed=11, scale_range=(0.005, 0.3))
     shuffle = torch.randperm(400, generator=torch.Generator().manual_seed(1))
@@ -464,7 +463,6 @@ def test_the_footprint_test_drops_only_tiles_where_nothing_is_drawn(tile_size, m
 
 @pytest.mark.parametrize("backend", ["torch", "cpu"])
 def test_footprint_bins_composite_the_image_of_the_whole_boxes(backend, monkeypatch):
-    from liquidgs.render.composite import composite_tiles
 
     if backend == "cpu" and cpu_backend.unavailable_reason() is not None:
         pytest.skip(f"compiled CPU rasteriser unavailable: {cpu_backend.unavailable_reason()}")
