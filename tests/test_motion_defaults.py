@@ -44,15 +44,15 @@ def test_a_capture_with_flow_gets_the_flow_loss_and_the_split(flow_capture):
     given, _ = configs(flow_capture)
     assert given.flow.weight is None and given.split.apply is None  # left to the scene
     decided = with_motion_evidence(given)
-    assert decided.flow.weight == DEFAULT_WEIGHT == 0.02 and decided.split.apply is True
-    on, _ = configs(flow_capture, "--flow.weight", "0.02", "--split.apply", "true")
+    assert decided.flow.weight == DEFAULT_WEIGHT == 0.04 and decided.split.apply is True
+    on, _ = configs(flow_capture, "--flow.weight", "0.04", "--split.apply", "true")
     assert config_hash(given) == config_hash(decided) == config_hash(on)
     assert decided.flow.tracks is False  # the tracks are asked for, not decided from the scene
-    assert identity(given)["flow"] == {"weight": 0.02} and identity(given)["split"]["apply"] is True
+    assert identity(given)["flow"] == {"weight": 0.04} and identity(given)["split"]["apply"] is True
     set_off, _ = configs(flow_capture, "--split.apply", "false")  # a value given is kept
-    assert with_motion_evidence(set_off).split.apply is False and with_motion_evidence(set_off).flow.weight == 0.02
+    assert with_motion_evidence(set_off).split.apply is False and with_motion_evidence(set_off).flow.weight == 0.04
     tracks = resolve_config(["--data", str(flow_capture), "--preset", "tiny", "--flow.tracks"])[0]
-    assert identity(tracks)["flow"] == {"weight": 0.02, "tracks": True} and config_hash(tracks) != config_hash(given)
+    assert identity(tracks)["flow"] == {"weight": 0.04, "tracks": True} and config_hash(tracks) != config_hash(given)
 
 
 def test_hexplane_trains_a_capture_with_flow_unsplit_unless_told(flow_capture):
@@ -79,7 +79,7 @@ def test_a_run_says_what_it_decided_from_the_scene(flow_capture, puppet_scene):
     unsplit = ("no static/dynamic split (field 'hexplane' trains unsplit; --split.apply true splits it) "
                "(--flow.weight 0 to train without)")  # fmt: skip
     for field, says in (("mlp", split), ("hexplane", unsplit)):
-        says = f"training with the flow loss at 0.02 and {says}"
+        says = f"training with the flow loss at 0.04 and {says}"
         given, _ = configs(flow_capture, "--field", field)
         note = motion_evidence_note(given, with_motion_evidence(given))
         assert note == f"the scene has optical flow and motion masks at this scale: {says}", note
@@ -169,3 +169,27 @@ def test_a_run_made_before_the_defaults_resumes_as_it_was_trained(flow_capture, 
         assert torch.equal(value, b["params"][key]), key
     resumed = load_yaml(config)
     assert resumed.flow.weight == 0.0 and resumed.split.apply is False
+
+
+@pytest.mark.slow
+def test_a_run_trained_at_the_earlier_default_weight_resumes_at_it(flow_capture, tmp_path, monkeypatch):
+    """A run whose config.yml holds the flow loss's weight of an earlier default (0.02, decided from the
+    scene when it started) resumes at that weight, not at today's DEFAULT_WEIGHT, to the last bit of
+    the same run trained whole; its identity stays that weight's."""
+    assert DEFAULT_WEIGHT != 0.02
+    flags = ["--data", str(flow_capture), "--field", "mlp", *RUN]
+    run_train([*flags, "--flow.weight", "0.02", "--out", str(tmp_path / "whole")])
+    cut = tmp_path / "cut"
+    interrupt_at(17, [*flags, "--flow.weight", "0.02", "--out", str(cut)], monkeypatch)
+    recorded = load_yaml(cut / "config.yml")
+    assert recorded.flow.weight == 0.02 and recorded.split.apply is True
+    run_train(["--out", str(cut), "--resume"])
+    a = torch.load(tmp_path / "whole" / "checkpoint.pt", weights_only=True)
+    b = torch.load(cut / "checkpoint.pt", weights_only=True)
+    for key, value in a["params"].items():
+        assert torch.equal(value, b["params"][key]), key
+    resumed = load_yaml(cut / "config.yml")
+    assert resumed.flow.weight == 0.02 and config_hash(resumed) == config_hash(recorded)
+    left = dataclasses.replace(resumed, flow=dataclasses.replace(resumed.flow, weight=None))
+    assert with_motion_evidence(left).flow.weight == DEFAULT_WEIGHT  # the same run started today...
+    assert config_hash(left) != config_hash(resumed)  # ...is another run, in another folder
