@@ -43,8 +43,9 @@ Spatially local deformation: a field whose deformation has parameters per region
 grid: hexplane) registers `local_deformation=True`. Neighbouring Gaussians can then move apart
 freely, so captures train it with the neighbour motion regularisers by default (train/motion_reg.py);
 a field that is one network over all of space (mlp, cfc, sde) is smooth in space already and trains
-without them unless asked. A local field also trains a capture with flow without the static/dynamic
-split unless asked (train/dynamic_split.py's split_by_default).
+without them unless asked. Where a capture with flow trains it with the static/dynamic split by
+default, the split takes the neighbour terms' place (train/motion_reg.py's
+split_in_place_of_neighbour_terms).
 
 Own settings: a field may register `options`, a dataclass whose every setting has a default
 (int, float, bool, str, a Literal, a tuple, or one of those or None). Its settings are the field's

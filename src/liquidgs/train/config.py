@@ -36,10 +36,10 @@ from liquidgs.fields.registry import check_recorded_field, field_record
 from liquidgs.render import BACKENDS
 from liquidgs.settings import to_dict, with_settings
 from liquidgs.train.camera_opt import Alignment, CameraRefineConfig, known_format, refines
-from liquidgs.train.dynamic_split import SplitConfig, split_applies, split_by_default
+from liquidgs.train.dynamic_split import SplitConfig, split_applies
 from liquidgs.train.exposure import ExposureConfig, compensates
 from liquidgs.train.flow_loss import DEFAULT_WEIGHT, FlowLossConfig
-from liquidgs.train.motion_reg import MotionRegConfig, motion_applies
+from liquidgs.train.motion_reg import MotionRegConfig, motion_applies, split_in_place_of_neighbour_terms
 from liquidgs.train.strategy import DensifyConfig
 
 
@@ -367,18 +367,21 @@ _FIELD_OPTION_NAMES = frozenset(f.name for f in dataclasses.fields(FieldOptions)
 def with_motion_evidence(cfg: TrainConfig) -> TrainConfig:
     """`cfg` with the motion evidence it leaves to the scene decided: where the scene has optical flow
     and motion masks at the scale the run reads (data.flow.has_flow) the flow loss at DEFAULT_WEIGHT
-    and the static/dynamic split on (for a field split_by_default allows), elsewhere (D-NeRF,
-    synthetic scenes, captures without flow) both off. A value set (flow.weight, split.apply) is
-    kept. The one owner of these defaults: the trainer records its result in config.yml (the run
-    resumes and reproduces as trained, whatever later happens to the scene's flow) and the identity
-    hashes it."""
+    and the static/dynamic split on - the split, where it is decided so, in place of the neighbour
+    terms a field registered local_deformation has by default (motion_reg.split_in_place_of_neighbour_terms)
+    - elsewhere (D-NeRF, synthetic scenes, captures without flow) both off. A value set (flow.weight,
+    split.apply, a motion weight) is kept. The one owner of these defaults: the trainer records its
+    result in config.yml (the run resumes and reproduces as trained, whatever later happens to the
+    scene's flow or to these defaults) and the identity hashes it."""
     if cfg.flow.weight is not None and cfg.split.apply is not None:
         return cfg
     found = has_flow(cfg.data)
     weight = cfg.flow.weight if cfg.flow.weight is not None else DEFAULT_WEIGHT if found else 0.0
-    apply = cfg.split.apply if cfg.split.apply is not None else found and split_by_default(cfg.field)
+    apply = cfg.split.apply if cfg.split.apply is not None else found
+    decided_split = cfg.split.apply is None and apply
+    motion = split_in_place_of_neighbour_terms(cfg.motion, cfg.field) if decided_split else cfg.motion
     return dataclasses.replace(cfg, flow=dataclasses.replace(cfg.flow, weight=weight),
-                               split=dataclasses.replace(cfg.split, apply=apply))  # fmt: skip
+                               split=dataclasses.replace(cfg.split, apply=apply), motion=motion)  # fmt: skip
 
 
 def motion_evidence_note(given: TrainConfig, decided: TrainConfig) -> str | None:
@@ -390,9 +393,8 @@ def motion_evidence_note(given: TrainConfig, decided: TrainConfig) -> str | None
         return None
     parts = [f"the flow loss at {decided.flow.weight:g}"] if decided.flow.weight > 0 else []
     if split_applies(decided.split, decided.field):
-        parts.append("the static/dynamic split")
-    elif given.split.apply is None and decided.field != "static":
-        parts.append(f"no static/dynamic split (field '{decided.field}' trains unsplit; --split.apply true splits it)")
+        replaced = given.split.apply is None and decided.motion != given.motion
+        parts.append("the static/dynamic split" + (" in place of the neighbour terms" if replaced else ""))
     off = " ".join(flag for flag, left in (("--flow.weight 0", flow_decided), ("--split.apply false", split_decided))
                    if left)  # fmt: skip
     found = "the scene has optical flow and motion masks at this scale"
@@ -431,8 +433,6 @@ def check_given_settings(cfg: TrainConfig, given: typing.Iterable[str]) -> None:
         if group == "split" and name != "apply" and not split_applies(cfg.split, cfg.field):
             if cfg.field == "static":
                 why = "the static field does not move Gaussians"
-            elif split_left_to_scene and not split_by_default(cfg.field):
-                why = f"field '{cfg.field}' trains unsplit unless --split.apply true is given"
             elif split_left_to_scene:
                 why = "the scene has no optical flow at the training scale (liquidgs data flow), so the split is off"
             else:

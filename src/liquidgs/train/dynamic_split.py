@@ -31,7 +31,6 @@ import torch
 from liquidgs.data.flow import read_motion_masks
 from liquidgs.data.scene import Frame
 from liquidgs.errors import ConfigError, DataError, check_integer, check_number
-from liquidgs.fields.registry import field_type
 
 DYNAMIC = "dynamic"
 """The strategy state's row of labels (bool [N]: True for a dynamic Gaussian)."""
@@ -42,14 +41,14 @@ REDECIDE_TIMES = 8
 @dataclass
 class SplitConfig:
     """Static and dynamic Gaussians (see liquidgs.train.dynamic_split); by default on where the scene
-    has motion masks at the training scale, for every field but HexPlane (split_by_default)."""
+    has motion masks at the training scale."""
 
     apply: bool | None = None
     """Split the Gaussians into static ones, which the field never moves, and dynamic ones, decided from
     the scene's motion masks (`liquidgs data flow`, at the training scale). Captures only; the static
     model has nothing to split. Unset: on where the scene has its flow and masks at the training
-    scale and the field is not spatially local (HexPlane trains unsplit: split_by_default), else
-    off."""
+    scale (for HexPlane, in place of its neighbour terms: motion_reg.split_in_place_of_neighbour_terms),
+    else off."""
     vote: float = 0.05
     """A Gaussian is dynamic when its centre lies inside the motion masks in at least this share of the
     train frames that see it. Low, because a mask holds a slow subject only in the frames where its
@@ -71,16 +70,6 @@ class SplitConfig:
             raise ConfigError(f"split.vote must be in (0, 1], got {self.vote!r}")
         check_integer("split.every", self.every, 1)
         check_number("split.still", self.still)
-
-
-def split_by_default(field: str) -> bool:
-    """Whether a capture with motion masks trains `field` split when split.apply is unset: every field
-    but one registered with local_deformation (hexplane). A grid of per-region deformation already
-    leaves still regions still, and the split only takes Gaussians from it: on the real-clip benchmark
-    (ten pairs of clip and seed, flow loss on) HexPlane's subject margin was 0.63 dB lower with the
-    split (95% t -0.99 to -0.26), where the MLP and the CfC gained 1.13 and 0.76 dB from it without
-    the flow loss (seed 0; docs/results/real-clips.md)."""
-    return not field_type(field).local_deformation
 
 
 def split_applies(cfg: SplitConfig, field: str) -> bool:
