@@ -59,7 +59,7 @@ def test_a_capture_with_flow_gets_the_flow_loss_and_the_split(flow_capture):
 def test_hexplane_trains_a_capture_with_flow_split_in_place_of_its_neighbour_terms(flow_capture):
     """A spatially local field (registered local_deformation) is split by default like every field, and
     the split takes its neighbour terms' place: their weights, left unset, are decided 0 (on the
-    real-clip benchmark the split without them beat the terms without the split by 0.63 dB on the
+    real-clip benchmark the split without them beat the terms without the split by 0.43 dB on the
     subject). A split or a weight given keeps the terms' meaning of before."""
     given, _ = configs(flow_capture, "--field", "hexplane")
     decided = with_motion_evidence(given)

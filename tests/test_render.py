@@ -418,7 +418,6 @@ def test_torch_backend_runs_on_cuda_like_on_cpu():
 def box_and_footprint_bins(scene: dict, tile_size: int, monkeypatch) -> tuple:
     """The scene's projection, its bins as the torch backend makes them, and the bins of the whole
     bounding boxes (the footprint test switched off: every column of every row)."""
-
     projection = project_gaussians(
         scene["means"], scene["quats"], scene["scales"], scene["opacities"], scene["viewmat"], scene["K"],
         scene["width"], scene["height"], 0.01, 1e10, 0.3,
@@ -437,7 +436,6 @@ def test_the_footprint_test_drops_only_tiles_where_nothing_is_drawn(tile_size, m
     """Tiles of a Gaussian's box that its ellipse of alpha >= 1/255 misses are left out of its bins:
     a fifth or more of the pairs here at tile size 4 (35-45% on trained scenes), and no pixel of a dropped tile is one
     the Gaussian would have drawn (alpha from the conic in float64, as the composite computes it)."""
-
     scene = random_scene(400, width=61, height=45, seed=11, scale_range=(0.005, 0.3))
     shuffle = torch.randperm(400, generator=torch.Generator().manual_seed(1))
     scene["opacities"] = torch.linspace(0.005, 1.0, 400)[shuffle]
@@ -463,7 +461,6 @@ def test_the_footprint_test_drops_only_tiles_where_nothing_is_drawn(tile_size, m
 
 @pytest.mark.parametrize("backend", ["torch", "cpu"])
 def test_footprint_bins_composite_the_image_of_the_whole_boxes(backend, monkeypatch):
-
     if backend == "cpu" and cpu_backend.unavailable_reason() is not None:
         pytest.skip(f"compiled CPU rasteriser unavailable: {cpu_backend.unavailable_reason()}")
     composite = cpu_backend.composite_tiles_cpu if backend == "cpu" else composite_tiles
