@@ -122,6 +122,19 @@ def test_tracks_asked_of_flow_computed_before_them_are_one_line(flow_capture, tm
         resolve_config(at_half)
 
 
+def test_stillness_given_where_the_split_holds_static_gaussians_still_is_one_line(flow_capture):
+    """The split trains no stillness term (static Gaussians are held still exactly): a stillness weight
+    given beside it would change the run's identity and nothing it trains, so it is refused; without
+    the split it is read."""
+    stillness = ["--data", str(flow_capture), "--preset", "tiny", "--field", "mlp", "--motion.stillness", "0.3"]
+    with pytest.raises(ConfigError, match=re.escape("--motion.stillness has no effect: the static/dynamic split "
+                                                    "holds the static Gaussians still (decided from the scene's")):
+        resolve_config(stillness)
+    with pytest.raises(ConfigError, match=re.escape("still; --split.apply false trains the term instead")):
+        resolve_config([*stillness, "--split.apply", "true"])
+    assert resolve_config([*stillness, "--split.apply", "false"])[0].motion.stillness == 0.3
+
+
 def test_dnerf_and_a_capture_without_flow_at_its_scale_keep_their_identity(flow_capture, puppet_scene, tmp_path):
     bare = Path(shutil.copytree(flow_capture, tmp_path / "bare", ignore=shutil.ignore_patterns("flow")))
     at_half = (flow_capture, ("--downscale", "2"))  # its flow is at 1x only

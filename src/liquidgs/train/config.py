@@ -426,6 +426,11 @@ def check_given_settings(cfg: TrainConfig, given: typing.Iterable[str]) -> None:
             else:
                 why = f"--motion.apply auto is off for {data_format} data (on for captures)"
             raise ConfigError(f"--motion.{name.replace('_', '-')} has no effect: {why}, so no motion term is trained")
+        if key == "motion.stillness" and split_applies(cfg.split, cfg.field):
+            # The trainer holds static Gaussians exactly still instead (dynamic_split), so the term is not trained.
+            decided = " (decided from the scene's motion masks)" if split_left_to_scene else ""
+            raise ConfigError("--motion.stillness has no effect: the static/dynamic split holds the static Gaussians "
+                              f"still{decided}; --split.apply false trains the term instead")  # fmt: skip
         if key == "flow.tracks" and not cfg.flow.weight:
             why = ("the scene has no optical flow at the training scale (liquidgs data flow)" if flow_left_to_scene
                    else "--flow.weight is 0")  # fmt: skip
