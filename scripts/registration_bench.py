@@ -1,7 +1,7 @@
 """Old and new camera registration on the same clips, paired in one sitting: wall and CPU seconds, and
 how far the new poses are from the old (liquidgs.data.pose_accuracy), and from the truth where known.
 
-    python scripts/registration_bench.py --old-src /path/to/old/checkout/src --out DIR CLIP ...
+    python scripts/registration_bench.py --old-src /path/to/old/checkout/src --out DIR [--new-args ARGS] CLIP ...
 
 A video is registered by `data video --frames 80 --max-size 640 --no-flow` (the real-clip
 benchmark's settings, without the flow that follows registration), a folder of images by `data images
@@ -32,15 +32,15 @@ from liquidgs.data.pose_accuracy import scene_poses, score_poses, score_scenes  
 NEW_SRC = Path(__file__).resolve().parent.parent / "src"
 
 
-def register(src: Path, clip: Path, out: Path) -> dict:
+def register(src: Path, clip: Path, out: Path, extra: list[str]) -> dict:
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     started = time.perf_counter()
     if clip.is_dir():
         command = [sys.executable, "-m", "liquidgs.cli", "data", "images", str(clip), "--out", str(out),
-                   "--max-size", "640", "--no-flow"]  # fmt: skip
+                   "--max-size", "640", "--no-flow", *extra]  # fmt: skip
     else:
         command = [sys.executable, "-m", "liquidgs.cli", "data", "video", str(clip), "--out", str(out),
-                   "--frames", "80", "--max-size", "640", "--no-flow"]  # fmt: skip
+                   "--frames", "80", "--max-size", "640", "--no-flow", *extra]  # fmt: skip
     result = subprocess.run(command, env={**os.environ, "PYTHONPATH": str(src)}, capture_output=True, text=True)
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     (out.parent / f"{out.name}.log").write_text(result.stdout + result.stderr)
@@ -76,6 +76,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--old-src", type=Path, required=True)
     parser.add_argument("--out", type=Path, required=True)
+    parser.add_argument("--new-args", default="", help="more arguments for the new run, e.g. '--matcher flow'")
     parser.add_argument("clips", type=Path, nargs="+")
     args = parser.parse_args()
     args.out.mkdir(parents=True, exist_ok=False)
@@ -84,7 +85,8 @@ def main() -> None:
         runs = {}
         for name, src in (("old", args.old_src), ("new", NEW_SRC)):
             print(f"{clip.stem} {name}: load {os.getloadavg()[0]:.2f}", flush=True)
-            runs[name] = register(src, clip, args.out / f"{clip.stem}-{name}")
+            extra = args.new_args.split() if name == "new" else []
+            runs[name] = register(src, clip, args.out / f"{clip.stem}-{name}", extra)
             print(f"{clip.stem} {name}: {json.dumps(runs[name])}", flush=True)
         if runs["old"]["code"] == runs["new"]["code"] == 0:
             score = score_scenes(args.out / f"{clip.stem}-new", args.out / f"{clip.stem}-old")

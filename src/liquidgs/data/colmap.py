@@ -1,9 +1,10 @@
 """Camera poses for a folder of frames with COLMAP (the pycolmap wheels: no COLMAP build, CPU),
 and COLMAP's own undistortion of images into a pinhole camera.
 
-One shared SIMPLE_RADIAL camera (a video has one lens and one zoom), SIFT features, sequential
-or exhaustive matching, then COLMAP's global mapper (GLOMAP's: rotation averaging, then every
-position at once; seconds where incremental mapping takes minutes) or its incremental mapper; the
+One shared SIMPLE_RADIAL camera (a video has one lens and one zoom), SIFT features, COLMAP's sequential
+or exhaustive matching or matching along the optical flow (data.flow_matches), then COLMAP's global mapper
+(GLOMAP's: rotation averaging, then every position at once; seconds where incremental mapping takes
+minutes) or its incremental mapper; the
 largest model is kept. When an attempt gives no usable model, the next is tried (`solve_attempts`):
 the incremental mapper on the same matches, every pair of frames matched, then a relaxed initial
 pair. A global model that passes COLMAP's checks but not the phone-camera checks of
@@ -30,6 +31,7 @@ from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 
+from liquidgs.data.flow_matches import VERIFY_MAX_ERROR, colmap_features, flow_guided_matches, read_gray
 from liquidgs.data.plausibility import MIN_POINTS_PER_FRAME, lens_warnings, model_warnings
 from liquidgs.data.stage_times import StageTimes
 from liquidgs.errors import LiquidGSError
@@ -37,7 +39,7 @@ from liquidgs.errors import LiquidGSError
 if TYPE_CHECKING:
     import pycolmap
 
-Matcher = Literal["sequential", "exhaustive"]
+Matcher = Literal["flow", "sequential", "exhaustive"]
 MapperKind = Literal["global", "incremental"]
 CAMERA_MODEL = "SIMPLE_RADIAL"
 # With COLMAP's quadratic overlap (its default) each frame is matched with the 1st, 2nd, 4th, 8th, ...
@@ -221,7 +223,7 @@ def solve_cameras(
                 if attempt.matcher not in matching:
                     try:
                         with times.stage("matching"):
-                            _match(pycolmap, database_path, attempt.matcher, total, options, log)
+                            _match(pycolmap, database_path, attempt.matcher, frames_dir, total, options, log)
                         matching[attempt.matcher] = None
                     except SolveError as error:
                         matching[attempt.matcher] = error
@@ -421,14 +423,17 @@ def _extract_features(pycolmap, database_path: Path, frames_dir: Path, image_nam
         )
 
 
-def _match(pycolmap, database_path: Path, matcher: Matcher, total: int, options: SolveOptions, log: Log) -> None:
+def _match(pycolmap, database_path: Path, matcher: Matcher, frames_dir: Path, total: int, options: SolveOptions,
+           log: Log) -> None:  # fmt: skip
     """Match the frame pairs `matcher` chooses; pairs already in the database are not matched again."""
     started = time.perf_counter()
     with pycolmap.Database.open(database_path) as database:
         before = len(database.read_two_view_geometry_num_inliers()[0])
     matching = pycolmap.FeatureMatchingOptions()
     matching.num_threads = options.threads
-    if matcher == "sequential":
+    if matcher == "flow":
+        _match_along_flow(pycolmap, database_path, frames_dir, options, log)
+    elif matcher == "sequential":
         pairing = pycolmap.SequentialPairingOptions()
         pairing.overlap = SEQUENTIAL_OVERLAP
         pairing.num_threads = options.threads
@@ -452,6 +457,34 @@ def _match(pycolmap, database_path: Path, matcher: Matcher, total: int, options:
             "film a textured, static background (not a blank wall), move the camera more slowly, "
             "or sample more frames (--fps/--frames)"
         )
+
+
+def _match_along_flow(pycolmap, database_path: Path, frames_dir: Path, options: SolveOptions, log: Log) -> None:
+    """data.flow_matches' flow-guided matches of COLMAP's sequential pairs between the database's features (frames
+    in name order, which is time order), then COLMAP's geometric verification of them (RANSAC's threshold
+    VERIFY_MAX_ERROR, seeded)."""
+    with pycolmap.Database.open(database_path) as database:
+        images = sorted(database.read_all_images(), key=lambda image: image.name)
+        features = [colmap_features(database.read_keypoints(image.image_id),
+                                    database.read_descriptors(image.image_id).data) for image in images]  # fmt: skip
+    gray = [_read_gray(frames_dir / image.name) for image in images]
+    found = flow_guided_matches(gray, features, SEQUENTIAL_OVERLAP, options.threads, log)
+    with pycolmap.Database.open(database_path) as database:
+        for (i, j), matches in found.items():
+            database.write_matches(images[i].image_id, images[j].image_id, matches)
+    geometry = pycolmap.TwoViewGeometryOptions()
+    geometry.ransac.max_error = VERIFY_MAX_ERROR
+    geometry.ransac.random_seed = SEED
+    verifier = pycolmap.GeometricVerifierOptions()
+    verifier.num_threads = options.threads
+    pycolmap.geometric_verification(database_path, verifier_options=verifier, two_view_geometry_options=geometry)
+
+
+def _read_gray(path: Path) -> np.ndarray:
+    gray = read_gray(path)
+    if gray is None:
+        raise SolveError(f"{path}: not an image OpenCV can read")
+    return gray
 
 
 def _map(pycolmap, database_path: Path, frames_dir: Path, sparse_dir: Path, attempt: Attempt, total: int,

@@ -1,7 +1,7 @@
 """Optical flow between two frames and what is built from it alone: OpenCV's DIS flow, each
 direction's forward-backward consistency, and flow chained over several frames. liquidgs' one owner
-of optical flow: the scene folder's flow (data.flow), the motion masks (data.motion_masks) and the
-features COLMAP is kept from (data.capture) all come from here.
+of optical flow: the scene folder's flow (data.flow), the motion masks (data.motion_masks), the
+features COLMAP is kept from (data.capture) and the matches it is given (data.flow_matches) all come from here.
 """
 
 from __future__ import annotations
@@ -27,11 +27,13 @@ def import_cv2():
 
 
 def optical_flow(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """DIS flow from image a to image b (uint8 RGB [H, W, 3]): float32 [H, W, 2], (dx, dy) in pixels."""
+    """DIS flow from image a to image b (uint8 RGB [H, W, 3] or grey [H, W]): float32 [H, W, 2], (dx, dy)
+    in pixels."""
     cv2 = import_cv2()
     preset = {"ultrafast": 0, "fast": 1, "medium": 2}[DIS_PRESET]
     dis = cv2.DISOpticalFlow_create(preset)
-    gray = [cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_RGB2GRAY) for image in (a, b)]
+    gray = [np.ascontiguousarray(image) if image.ndim == 2 else cv2.cvtColor(np.ascontiguousarray(image),
+            cv2.COLOR_RGB2GRAY) for image in (a, b)]  # fmt: skip
     return dis.calc(gray[0], gray[1], None).astype(np.float32)
 
 
