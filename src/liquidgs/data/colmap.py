@@ -223,7 +223,7 @@ def solve_cameras(
                 if attempt.matcher not in matching:
                     try:
                         with times.stage("matching"):
-                            _match(pycolmap, database_path, attempt.matcher, frames_dir, total, options, log)
+                            _match(pycolmap, database_path, attempt.matcher, frames_dir, image_names, options, log)
                         matching[attempt.matcher] = None
                     except SolveError as error:
                         matching[attempt.matcher] = error
@@ -423,26 +423,30 @@ def _extract_features(pycolmap, database_path: Path, frames_dir: Path, image_nam
         )
 
 
-def _match(pycolmap, database_path: Path, matcher: Matcher, frames_dir: Path, total: int, options: SolveOptions,
-           log: Log) -> None:  # fmt: skip
-    """Match the frame pairs `matcher` chooses; pairs already in the database are not matched again."""
+def _match(pycolmap, database_path: Path, matcher: Matcher, frames_dir: Path, image_names: list[str],
+           options: SolveOptions, log: Log) -> None:  # fmt: skip
+    """Match the frame pairs `matcher` chooses (image_names in time order); pairs already in the database are
+    not matched again."""
     started = time.perf_counter()
+    total = len(image_names)
     with pycolmap.Database.open(database_path) as database:
         before = len(database.read_two_view_geometry_num_inliers()[0])
     matching = pycolmap.FeatureMatchingOptions()
     matching.num_threads = options.threads
+    geometry = pycolmap.TwoViewGeometryOptions()
+    geometry.ransac.random_seed = SEED  # unseeded, the same frames gave another model from run to run
     if matcher == "flow":
-        _match_along_flow(pycolmap, database_path, frames_dir, options, log)
+        _match_along_flow(pycolmap, database_path, frames_dir, image_names, options, log)
     elif matcher == "sequential":
         pairing = pycolmap.SequentialPairingOptions()
         pairing.overlap = SEQUENTIAL_OVERLAP
         pairing.num_threads = options.threads
         pycolmap.match_sequential(database_path, matching_options=matching, pairing_options=pairing,
-                                  device=pycolmap.Device.cpu)  # fmt: skip
+                                  verification_options=geometry, device=pycolmap.Device.cpu)  # fmt: skip
     else:
         pairing = pycolmap.ExhaustivePairingOptions()  # no thread count of its own (matching_options has it)
         pycolmap.match_exhaustive(database_path, matching_options=matching, pairing_options=pairing,
-                                  device=pycolmap.Device.cpu)  # fmt: skip
+                                  verification_options=geometry, device=pycolmap.Device.cpu)  # fmt: skip
     with pycolmap.Database.open(database_path) as database:
         _, inliers = database.read_two_view_geometry_num_inliers()
     verified = sum(count > 0 for count in inliers)
@@ -459,12 +463,13 @@ def _match(pycolmap, database_path: Path, matcher: Matcher, frames_dir: Path, to
         )
 
 
-def _match_along_flow(pycolmap, database_path: Path, frames_dir: Path, options: SolveOptions, log: Log) -> None:
-    """data.flow_matches' flow-guided matches of COLMAP's sequential pairs between the database's features (frames
-    in name order, which is time order), then COLMAP's geometric verification of them (RANSAC's threshold
-    VERIFY_MAX_ERROR, seeded)."""
+def _match_along_flow(pycolmap, database_path: Path, frames_dir: Path, image_names: list[str], options: SolveOptions,
+                      log: Log) -> None:  # fmt: skip
+    """data.flow_matches' flow-guided matches of COLMAP's sequential pairs between the database's features (the
+    frames in time order), then COLMAP's geometric verification of them (RANSAC's threshold VERIFY_MAX_ERROR,
+    seeded)."""
     with pycolmap.Database.open(database_path) as database:
-        images = sorted(database.read_all_images(), key=lambda image: image.name)
+        images = [database.read_image_with_name(name) for name in image_names]
         features = [colmap_features(database.read_keypoints(image.image_id),
                                     database.read_descriptors(image.image_id).data) for image in images]  # fmt: skip
     gray = [_read_gray(frames_dir / image.name) for image in images]
