@@ -31,7 +31,8 @@ from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 
-from liquidgs.data.flow_matches import VERIFY_MAX_ERROR, colmap_features, flow_guided_matches, read_gray
+from liquidgs.data.flow_matches import VERIFY_MAX_ERROR, colmap_features, flow_guided_matches
+from liquidgs.data.optical_flow import import_cv2
 from liquidgs.data.plausibility import MIN_POINTS_PER_FRAME, lens_warnings, model_warnings
 from liquidgs.data.stage_times import StageTimes
 from liquidgs.errors import LiquidGSError
@@ -431,12 +432,12 @@ def _match(pycolmap, database_path: Path, matcher: Matcher, frames_dir: Path, im
     total = len(image_names)
     with pycolmap.Database.open(database_path) as database:
         before = len(database.read_two_view_geometry_num_inliers()[0])
-    matching = pycolmap.FeatureMatchingOptions()
-    matching.num_threads = options.threads
     geometry = pycolmap.TwoViewGeometryOptions()
     geometry.ransac.random_seed = SEED  # unseeded, the same frames gave another model from run to run
+    matching = pycolmap.FeatureMatchingOptions()
+    matching.num_threads = options.threads
     if matcher == "flow":
-        _match_along_flow(pycolmap, database_path, frames_dir, image_names, options, log)
+        _match_along_flow(pycolmap, database_path, frames_dir, image_names, geometry, options, log)
     elif matcher == "sequential":
         pairing = pycolmap.SequentialPairingOptions()
         pairing.overlap = SEQUENTIAL_OVERLAP
@@ -463,11 +464,11 @@ def _match(pycolmap, database_path: Path, matcher: Matcher, frames_dir: Path, im
         )
 
 
-def _match_along_flow(pycolmap, database_path: Path, frames_dir: Path, image_names: list[str], options: SolveOptions,
-                      log: Log) -> None:  # fmt: skip
+def _match_along_flow(pycolmap, database_path: Path, frames_dir: Path, image_names: list[str], geometry,
+                      options: SolveOptions, log: Log) -> None:  # fmt: skip
     """data.flow_matches' flow-guided matches of COLMAP's sequential pairs between the database's features (the
-    frames in time order), then COLMAP's geometric verification of them (RANSAC's threshold VERIFY_MAX_ERROR,
-    seeded)."""
+    frames in time order), then COLMAP's geometric verification of them: `geometry` (TwoViewGeometryOptions,
+    seeded) with RANSAC's threshold VERIFY_MAX_ERROR."""
     with pycolmap.Database.open(database_path) as database:
         images = [database.read_image_with_name(name) for name in image_names]
         features = [colmap_features(database.read_keypoints(image.image_id),
@@ -477,16 +478,16 @@ def _match_along_flow(pycolmap, database_path: Path, frames_dir: Path, image_nam
     with pycolmap.Database.open(database_path) as database:
         for (i, j), matches in found.items():
             database.write_matches(images[i].image_id, images[j].image_id, matches)
-    geometry = pycolmap.TwoViewGeometryOptions()
     geometry.ransac.max_error = VERIFY_MAX_ERROR
-    geometry.ransac.random_seed = SEED
     verifier = pycolmap.GeometricVerifierOptions()
     verifier.num_threads = options.threads
     pycolmap.geometric_verification(database_path, verifier_options=verifier, two_view_geometry_options=geometry)
 
 
 def _read_gray(path: Path) -> np.ndarray:
-    gray = read_gray(path)
+    """A frame as grey uint8 [H, W], decoded by OpenCV (its grey rounds differently from PIL's "L")."""
+    cv2 = import_cv2()
+    gray = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
     if gray is None:
         raise SolveError(f"{path}: not an image OpenCV can read")
     return gray

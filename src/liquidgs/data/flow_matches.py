@@ -15,7 +15,6 @@ from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
@@ -168,9 +167,3 @@ def opencv_threads(count: int) -> Iterator[None]:
         yield
     finally:
         cv2.setNumThreads(before)
-
-
-def read_gray(path: Path) -> np.ndarray | None:
-    """A frame as a grey uint8 [H, W] image, or None where OpenCV cannot read it."""
-    cv2 = import_cv2()
-    return cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
