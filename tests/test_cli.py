@@ -119,6 +119,7 @@ def test_bench_train_times_every_phase_of_real_steps(capsys, tmp_path):
     assert json.loads(output.read_text()) == record
     assert record["scene"] == "puppet" and record["resolution"] == [32, 32] and record["field"] == "mlp"
     assert record["timed_steps"] == [121, 124] and record["n_gaussians"]["min"] > 0
+    assert "dynamic_gaussians" not in record  # no split on a synthetic scene
     phases = record["phases_ms"]
     assert set(phases) == {
         "data", "field_forward", "raster_forward", "loss_forward", "loss_backward", "raster_backward", "field_backward",

@@ -12,15 +12,18 @@ import pytest
 import torch
 from PIL import Image
 
+from liquidgs.cli import main as cli
 from liquidgs.commands.train import resolve_config
 from liquidgs.data import load_dataset
 from liquidgs.errors import LiquidGSError
-from liquidgs.train.config import config_hash, identity
+from liquidgs.train.config import config_hash, identity, load_yaml
 from liquidgs.train.dataset import load_run_dataset
-from liquidgs.train.dynamic_split import DYNAMIC, MotionVotes, SplitConfig
+from liquidgs.train.dynamic_split import DYNAMIC, MotionVotes, SplitConfig, surface_depth, where_they_stand
 from liquidgs.train.flow_loss import project_with_depth
+from liquidgs.train.model import Deformed, render_frame
 from liquidgs.train.run import load_run
 from liquidgs.train.strategy import D3DGSStrategy, DensifyConfig, _duplicate_unmeasured, _split
+from liquidgs.train.trainer import Trainer
 from shared_data import use_optional_lpips
 from tiny_runs import interrupt_at, run_cli, run_train, tiny_flags
 
@@ -45,22 +48,54 @@ def test_a_point_the_masks_hold_in_every_frame_is_dynamic_and_one_they_never_hol
     for i, frame in enumerate(train):  # each frame's mask is the one pixel the first point falls in
         col, row = project_with_depth(held.double(), frame.camera)[0].floor().long()[0].tolist()
         votes.masks[i, row, col] = True
-    assert votes.vote(torch.cat([held, elsewhere])).tolist() == [1.0, 0.0]
-    assert votes.initial(torch.cat([held, elsewhere])).tolist() == [True, False]
+    both = where_they_stand(torch.cat([held, elsewhere]))
+    assert votes.vote(both).tolist() == [1.0, 0.0]
+    assert votes.held(both).tolist() == [True, False]
     behind = torch.tensor([[0.0, 0.0, 1e4]])  # no camera sees it: static
-    assert votes.vote(behind).tolist() == [0.0]
+    assert votes.vote(where_they_stand(behind)).tolist() == [0.0]
+
+
+def test_a_gaussian_hidden_behind_the_moving_subject_is_not_held_by_its_mask(flow_capture):
+    # In every frame a wide opaque Gaussian (the subject) stands in front of a small one (the wall
+    # behind it) on the camera's axis, and the frame's motion mask holds the subject's pixels.
+    votes, train = votes_for(flow_capture, SplitConfig(apply=True, occlusion=0.2))
+    votes.masks[:] = False
+
+    def seen_by(index: int):
+        camera = train[index].camera
+        rotation, translation = camera.viewmat[:3, :3], camera.viewmat[:3, 3]
+        centre, axis = -rotation.T @ translation, rotation[2]  # the camera's centre and viewing axis
+        subject, wall = centre + 1.0 * axis, centre + 2.0 * axis
+        col, row = project_with_depth(subject[None].double(), camera)[0].floor().long()[0].tolist()
+        votes.masks[index, row - 2 : row + 3, col - 2 : col + 3] = True
+        gaussians = Deformed(
+            means=torch.stack([subject, wall]).float(), quats=torch.tensor([[1.0, 0, 0, 0]] * 2),
+            scales=torch.tensor([[0.2] * 3, [0.01] * 3]), opacities=torch.tensor([0.99, 0.99]),
+            colors=torch.ones(2, 3),
+        )  # fmt: skip
+        out = render_frame(gaussians, camera, sh_degree=None, background=torch.zeros(3))
+        return gaussians.means, surface_depth(out.depth[..., 0], out.alpha[..., 0])
+
+    assert votes.vote(seen_by).tolist() == [1.0, 0.0]  # the wall is never the surface its pixel shows
+    centres_alone = [seen_by(i)[0] for i in range(len(train))]
+    assert votes.vote(lambda i: (centres_alone[i], None)).tolist() == [1.0, 1.0]  # without the test, it is
+
+
+def test_the_surface_is_drawn_only_where_the_render_is_opaque():
+    depth, alpha = torch.tensor([[2.0, 3.0]]), torch.tensor([[0.5, 0.49]])
+    assert surface_depth(depth, alpha).tolist() == [[2.0, float("inf")]]
 
 
 def test_labels_are_decided_again_from_the_masks_and_the_field_motion(flow_capture):
     votes, _ = votes_for(flow_capture)
-    votes.vote = lambda means: torch.tensor([1.0, 0.0, 0.0, 1.0])  # masks hold Gaussians 0 and 3
+    votes.vote = lambda seen_by: torch.tensor([1.0, 0.0, 0.0, 1.0])  # masks hold Gaussians 0 and 3
     labels = torch.tensor([False, True, True, True])
     moves = {1: 0.0, 2: 0.5, 3: 0.0}  # the field leaves 1 (and 3) still and moves 2
 
     def largest_move(indices):
         return torch.tensor([moves[int(i)] for i in indices])
 
-    new = votes.redecide(torch.zeros(4, 3), labels, largest_move)
+    new = votes.redecide(where_they_stand(torch.zeros(4, 3)), labels, largest_move)
     # 0: inside, becomes dynamic; 1: outside and still, becomes static; 2 moves; 3 is inside (kept)
     assert new.tolist() == [True, False, True, True]
 
@@ -122,6 +157,64 @@ def test_a_split_run_resumes_bit_exactly_labels_included(flow_capture, tmp_path,
     assert torch.equal(a["strategy"][DYNAMIC], b["strategy"][DYNAMIC])
     for key, value in a["params"].items():
         assert torch.equal(value, b["params"][key]), key
+
+
+def test_the_labels_are_decided_afresh_with_the_occlusion_test_when_the_warm_up_ends(flow_capture, tmp_path):
+    """Before its first step with the field, every label is the occlusion-tested vote over the scene
+    the warm-up drew: promotions and demotions alike (nothing has moved yet, so nothing jumps)."""
+    cfg, _ = resolve_config(["--data", str(flow_capture), "--field", "mlp", *SPLIT_RUN, "--split.occlusion", "0.2"])
+    trainer = Trainer(cfg, tmp_path / "run")
+    warmup = trainer.cfg.warmup
+    for step in range(1, warmup):
+        trainer.train_step(step)
+    before = trainer.strategy_state[DYNAMIC].clone()
+    decided = trainer.split.held(trainer._seen_by(warmup, moved=False))
+    trainer.train_step(warmup)
+    after = trainer.strategy_state[DYNAMIC]
+    assert torch.equal(after, decided)
+    assert (before & ~after).any()  # the centres' vote held some the occlusion test does not
+
+
+@pytest.mark.slow
+def test_a_split_run_made_before_the_occlusion_test_resumes_as_it_was_trained(flow_capture, tmp_path, monkeypatch):
+    """Its config.yml has no split.occlusion (written before it existed): it resumes with the centres'
+    vote and no decision at the warm-up's end, to the last bit of the same run trained whole, and is
+    the run the defaults make today (the test is opt-in); with the test it is another run."""
+    flags = ["--data", str(flow_capture), "--field", "mlp", *SPLIT_RUN]
+    run_train([*flags, "--out", str(tmp_path / "whole")])
+    cut = tmp_path / "cut"
+    interrupt_at(17, [*flags, "--out", str(cut)], monkeypatch)
+    config = cut / "config.yml"
+    lines = config.read_text().splitlines()
+    kept = [line for line in lines if line.strip() != "occlusion: null"]
+    assert len(kept) == len(lines) - 1
+    config.write_text("\n".join(kept) + "\n")
+    run_train(["--out", str(cut), "--resume"])
+    a = torch.load(tmp_path / "whole" / "checkpoint.pt", weights_only=True)
+    b = torch.load(cut / "checkpoint.pt", weights_only=True)
+    assert torch.equal(a["strategy"][DYNAMIC], b["strategy"][DYNAMIC])
+    for key, value in a["params"].items():
+        assert torch.equal(value, b["params"][key]), key
+    resumed = load_yaml(config)
+    assert resumed.split.occlusion is None and "occlusion" not in identity(resumed)["split"]
+    assert config_hash(resolve_config(flags)[0]) == config_hash(resumed)
+    assert config_hash(resolve_config([*flags, "--split.occlusion", "0.2"])[0]) != config_hash(resumed)
+
+
+def test_a_negative_occlusion_tolerance_is_one_line(flow_capture, tmp_path):
+    code, _, stderr = run_cli(["train", "--data", str(flow_capture), "--preset", "tiny", "--split.occlusion", "-0.1",
+                               "--out", str(tmp_path / "run")])  # fmt: skip
+    assert code == 2 and "split.occlusion must be a finite number >= 0, got -0.1" in stderr
+    assert stderr.count("\n") == 1 and not (tmp_path / "run").exists()
+
+
+def test_bench_train_counts_the_gaussians_the_field_moves_in_a_split_run(flow_capture, capsys):
+    """What the split saves is in proportion to the dynamic Gaussians: the record says how many."""
+    args = ["bench", "train", "--json", "--data", str(flow_capture), "--from-step", "8", "--steps", "2",
+            "--split.apply", "true", "--split.vote", "0.5"]  # fmt: skip
+    assert cli(args) == 0
+    record = json.loads(capsys.readouterr().out)
+    assert 0 < record["dynamic_gaussians"]["median"] < record["n_gaussians"]["median"]
 
 
 def test_the_split_switched_off_leaves_the_identity_of_runs_without_it(flow_capture, puppet_scene, tmp_path):

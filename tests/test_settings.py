@@ -72,8 +72,14 @@ def test_flags_give_typed_settings():
 
 def test_a_switch_that_may_be_unset_takes_a_value_as_tyro_shows_it():
     """split.apply (bool or None, None: decided from the scene): --split.apply {None,True,False}."""
-    for text, value in (("True", True), ("false", False), ("None", None)):
+    for text, value in (("True", True), ("false", False), ("None", None), ("null", None)):
         assert parse_flag_settings(TrainConfig, ["--split.apply", text], "t") == {"split.apply": value}
+
+
+def test_a_number_that_may_be_unset_takes_none_as_its_reference_writes_it():
+    """The reference and the errors call an unset value null (YAML's word): the flag takes it too."""
+    for text, value in (("0.3", 0.3), ("null", None), ("None", None)):
+        assert parse_flag_settings(TrainConfig, ["--split.occlusion", text], "t") == {"split.occlusion": value}
 
 
 def test_flags_round_trip_through_to_flags():

@@ -37,6 +37,8 @@ from liquidgs.errors import ConfigError
 T = TypeVar("T")
 
 _NONE_TEXT = "None"
+_NONE_TEXTS = (_NONE_TEXT, "null")
+"""How a flag says None: Python's word, or YAML's (which `describe` and the reference use)."""
 
 
 MAX_YAML_VALUES = 100_000
@@ -333,7 +335,7 @@ def _parse_value(text: str, hint, flag: str):
         raise ConfigError(f"{flag}: an empty path; name the file or folder ('.' for the current folder)")
     if _is_union(hint):
         args = typing.get_args(hint)
-        if type(None) in args and text == _NONE_TEXT:
+        if type(None) in args and text in _NONE_TEXTS:
             return None
         for arg in args:
             if arg is type(None):

@@ -116,7 +116,7 @@ def measure(args: argparse.Namespace, data: Path, run_dir: Path) -> dict:
     for step in range(1, args.from_step + 1):
         trainer.train_step(step)
     clock = trainer.clock = PhaseClock(trainer.device, cpu_time=args.clock == "cpu")
-    totals, phases, counts = [], {phase: [] for phase in PHASES}, []
+    totals, phases, counts, dynamic = [], {phase: [] for phase in PHASES}, [], []
     for step in range(args.from_step + 1, cfg.iterations + 1):
         started = clock.now()
         stats = trainer.train_step(step)
@@ -124,6 +124,8 @@ def measure(args: argparse.Namespace, data: Path, run_dir: Path) -> dict:
         for phase in PHASES:
             phases[phase].append(clock.times[phase])
         counts.append(stats["n_gaussians"])
+        if (moving := trainer.moving()) is not None:  # the split: the field moves these alone
+            dynamic.append(moving.numel())
     frame = trainer.dataset.train[0]
     return {
         "benchmark": "train",
@@ -134,7 +136,8 @@ def measure(args: argparse.Namespace, data: Path, run_dir: Path) -> dict:
         "settings": {key: to_dict_value(value) for key, value in args.settings.items()},
         "backend": _backend_used(trainer, frame),
         "timed_steps": [args.from_step + 1, cfg.iterations],
-        "n_gaussians": {"min": min(counts), "median": int(statistics.median(counts)), "max": max(counts)},
+        "n_gaussians": _spread(counts),
+        **({"dynamic_gaussians": _spread(dynamic)} if dynamic else {}),
         "clock": args.clock,
         "ms_per_iteration": round(1000 * statistics.median(totals), 2),
         "phases_ms": {phase: round(1000 * statistics.median(values), 3) for phase, values in phases.items()},
@@ -143,6 +146,10 @@ def measure(args: argparse.Namespace, data: Path, run_dir: Path) -> dict:
         "torch_version": torch.__version__,
         "torch_threads": torch.get_num_threads(),
     }
+
+
+def _spread(counts: list[int]) -> dict:
+    return {"min": min(counts), "median": int(statistics.median(counts)), "max": max(counts)}
 
 
 @torch.no_grad()

@@ -194,10 +194,16 @@ class CameraRefinement(FrameCorrections):
         return step >= self.cfg.start
 
     def correct(self, gaussians: Deformed, index: int, camera: Camera, step: int) -> Deformed:
-        """The Gaussians as train camera `index`, corrected, sees them (as given before `start`)."""
+        """The Gaussians as train camera `index`, corrected, sees them (as given before `start`), for a
+        training step: the corrections used are stepped after it."""
+        if self.active(step):
+            self._updated = True
+        return self.seen_by(gaussians, index, camera, step)
+
+    def seen_by(self, gaussians: Deformed, index: int, camera: Camera, step: int) -> Deformed:
+        """As `correct`, outside a training step (nothing is stepped for it)."""
         if not self.active(step):
             return gaussians
-        self._updated = True
         return move_gaussians(gaussians, camera.viewmat.to(self.rotations.device),
                               self.rotations[index], self.translations[index])  # fmt: skip
 

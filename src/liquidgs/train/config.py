@@ -504,6 +504,8 @@ def identity_v2(cfg: TrainConfig) -> dict:
         del d["flow"]["tracks"]
     if not split_applies(cfg.split, cfg.field):  # static and dynamic Gaussians, likewise
         del d["split"]
+    elif cfg.split.occlusion is None:  # the occlusion test, added after the split: off in every run made before it
+        del d["split"]["occlusion"]
     if not cfg.perturb.exposure:  # the exposure-flicker stress test, added after version 2
         del d["perturb"]["exposure"]
     d["data"]["path"] = str(Path(d["data"]["path"]).resolve())

@@ -11,6 +11,7 @@ import dataclasses
 import math
 import resource
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -29,7 +30,15 @@ from liquidgs.gaussians import PARAM_KEYS, init_from_points, init_random_box
 from liquidgs.train.camera_opt import CameraRefinement, aligned_render, refines
 from liquidgs.train.config import TrainConfig, motion_evidence_note, save_yaml, with_motion_evidence
 from liquidgs.train.dataset import load_run_dataset
-from liquidgs.train.dynamic_split import DYNAMIC, MotionVotes, moving_indices, split_applies
+from liquidgs.train.dynamic_split import (
+    DYNAMIC,
+    MotionVotes,
+    Seen,
+    moving_indices,
+    split_applies,
+    surface_depth,
+    where_they_stand,
+)
 from liquidgs.train.exposure import ExposureCompensation, compensates
 from liquidgs.train.flow_loss import FlowLoss
 from liquidgs.train.model import deform, hold_sizes, render_frame
@@ -161,7 +170,7 @@ class Trainer:
         self.split = self._motion_votes()
         """The motion masks that label each Gaussian static or dynamic, or None (the run does not split)."""
         if self.split is not None:
-            self.strategy_state[DYNAMIC] = self.split.initial(self.params["means"].detach())
+            self.strategy_state[DYNAMIC] = self.split.held(where_they_stand(self.params["means"].detach()))
         weights = regularisation(cfg.motion, self.dataset.format, cfg.field)
         if weights is not None and self.split is not None:  # static Gaussians are held still exactly
             weights = weights[:2] + (0.0,) if any(weights[:2]) else None
@@ -342,6 +351,8 @@ class Trainer:
         self.field.set_progress(step)
         clock.mark("data")
         n_before = self.params["means"].shape[0]
+        if self.split is not None and self.split.decides_afresh(step, cfg.warmup):
+            self._relabel(self.split.held(self._seen_by(step, moved=False)))  # the warm-up's scene
         moving = self.moving()
         gaussians = deform(self.params, self.field if use_field else None, frame.time, self.time_noise(step), moving)
         if not all(torch.isfinite(t).all() for t in (gaussians.means, gaussians.quats, gaussians.scales)):
@@ -390,7 +401,7 @@ class Trainer:
         if self.exposure is not None:
             self.exposure.step(step)
         if self.split is not None and use_field and self.split.redecides(step, cfg.warmup, cfg.densify.stop):
-            self._redecide_labels()
+            self._redecide_labels(step)
         clock.mark("optimizer_step")
         with torch.no_grad():
             mse = ((rgb.detach().clamp(0, 1) - gt) ** 2).mean()
@@ -419,14 +430,41 @@ class Trainer:
                                 deformed.quats[moving], deformed.scales[moving])  # fmt: skip
 
     @torch.no_grad()
-    def _redecide_labels(self) -> None:
-        """The split's labels decided again (train.dynamic_split); the neighbour terms then look anew."""
-        labels = self.strategy_state[DYNAMIC]
-        new = self.split.redecide(self.params["means"].detach(), labels, self._largest_move)
-        if not torch.equal(new, labels):
+    def _redecide_labels(self, step: int) -> None:
+        """The split's labels decided again (train.dynamic_split)."""
+        self._relabel(self.split.redecide(self._seen_by(step), self.strategy_state[DYNAMIC], self._largest_move))
+
+    def _relabel(self, new: torch.Tensor) -> None:
+        """New labels for the split; the neighbour terms then look anew."""
+        if not torch.equal(new, self.strategy_state[DYNAMIC]):
             self.strategy_state[DYNAMIC] = new
             if self.motion is not None:
                 self.motion.forget_neighbours()
+
+    def _seen_by(self, step: int, moved: bool = True) -> Callable[[int], Seen]:
+        """What each train frame shows of the Gaussians at `step`, for the split's vote: with the
+        occlusion test, the Gaussians at the frame's time (moved by the field, without its training
+        noise, where `moved`) as its corrected camera sees them and the depth they render; without
+        it, the centres where they stand."""
+        if self.cfg.split.occlusion is None:
+            return where_they_stand(self.params["means"].detach())
+        field = self.field if moved and self.field_active(step) else None
+
+        @torch.no_grad()
+        def seen(index: int) -> Seen:
+            frame = self.dataset.train[index]
+            self.field.eval()
+            try:
+                gaussians = deform(self.params, field, frame.time, moving=self.moving())
+            finally:
+                self.field.train()
+            if self.cameras is not None:
+                gaussians = self.cameras.seen_by(gaussians, index, frame.camera, step)
+            out = render_frame(gaussians, frame.camera, sh_degree=0, background=self.background,
+                               backend=self.cfg.backend)  # fmt: skip
+            return gaussians.means, surface_depth(out.depth[..., 0], out.alpha[..., 0])
+
+        return seen
 
     def _largest_move(self, indices: torch.Tensor) -> torch.Tensor:
         """How far the field moves each Gaussian of `indices` (its surface, scene units), the most over
