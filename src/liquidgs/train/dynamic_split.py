@@ -89,8 +89,9 @@ class SplitConfig:
     half opaque), so a Gaussian hidden behind a moving subject is not held by the subject's mask; the
     labels are then decided afresh at the end of the warm-up. None (the default): every frame whose
     view holds the centre counts, and the labels stand from the start. Measured on the cat at 0.2
-    (docs/results/video-pipeline.md): a quarter fewer dynamic Gaussians and a cheaper step, but the
-    background 1.0-1.4 dB worse for every field and HexPlane's subject 3 dB worse, so not the default."""
+    (docs/results/video-pipeline.md): a fifth to a quarter fewer dynamic Gaussians and a cheaper step,
+    but the background 1.0-1.5 dB worse for every field and HexPlane's subject 0.6-3 dB worse, so not
+    the default."""
 
     def __post_init__(self) -> None:
         if self.apply is not None and not isinstance(self.apply, bool):
