@@ -66,6 +66,12 @@ refined with the rotations held, COLMAP's ba_skip_fixed_rotation_stage): on New 
 known cameras) mapping took 18.2 s instead of 22.7 with the poses as near the truth (0.156 centre RMS,
 0.151 deg against 0.155, 0.152), on the cat 4.7 s instead of 5.9 with the poses 0.13 deg from the
 stage's (measured, docs/results/registration.md)."""
+VERIFICATION_MAX_TRIALS = 2000
+"""RANSAC draws at most this many samples per model when COLMAP verifies a frame pair (its default
+10,000): on New Tsukuba the verification of 814 pairs took about 11 s of the 24 s of matching, most of
+it in pairs that ran to the cap; at 2,000 (and at 1,000) every pair kept the same inlier count and the
+poses were the same to the last digit, matching 16.5 s (14.8 s); the cat, teddy and apple were
+unchanged, in result and time (measured, docs/results/log.md)."""
 DEADLINE_SECONDS = 600
 """Each attempt's mapping stops after this long (COLMAP's max_runtime_seconds for the incremental
 mapper; for the global one, which has no such option, its bundle adjustment's time limit)."""
@@ -440,6 +446,7 @@ def _match(pycolmap, database_path: Path, matcher: Matcher, frames_dir: Path, im
         before = len(database.read_two_view_geometry_num_inliers()[0])
     geometry = pycolmap.TwoViewGeometryOptions()
     geometry.ransac.random_seed = SEED  # unseeded, the same frames gave another model from run to run
+    geometry.ransac.max_num_trials = VERIFICATION_MAX_TRIALS
     matching = pycolmap.FeatureMatchingOptions()
     matching.num_threads = options.threads
     if matcher == "flow":
