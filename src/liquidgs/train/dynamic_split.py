@@ -37,6 +37,7 @@ import torch
 from liquidgs.data.flow import read_motion_masks
 from liquidgs.data.scene import Frame
 from liquidgs.errors import ConfigError, DataError, check_integer, check_number
+from liquidgs.train.flow_loss import project_with_depth
 
 DYNAMIC = "dynamic"
 """The strategy state's row of labels (bool [N]: True for a dynamic Gaussian)."""
@@ -131,8 +132,7 @@ class MotionVotes:
             raise DataError(folder, "the motion masks hold no pixel: nothing moves for the split to find")
         if share == 1.0:
             raise DataError(folder, "the motion masks hold every pixel: no static part for the split to find")
-        self.viewmats = torch.stack([f.camera.viewmat for f in frames]).to(device)
-        self.Ks = torch.stack([f.camera.K for f in frames]).to(device)
+        self.cameras = [frame.camera for frame in frames]
         self.times = [f.time for f in frames]
 
     @torch.no_grad()
@@ -141,13 +141,11 @@ class MotionVotes:
         frame sees it); `seen_by(i)` is what train frame i shows of the Gaussians."""
         _, height, width = self.masks.shape
         inside = seen = None
-        for index, (viewmat, K, mask) in enumerate(zip(self.viewmats, self.Ks, self.masks, strict=True)):
+        for index, (camera, mask) in enumerate(zip(self.cameras, self.masks, strict=True)):
             means, depth_drawn = seen_by(index)
             if inside is None:
                 inside, seen = means.new_zeros(means.shape[0]), means.new_zeros(means.shape[0])
-            in_camera = means @ viewmat[:3, :3].T + viewmat[:3, 3]
-            depth = in_camera[:, 2]
-            pixel = (in_camera[:, :2] / depth.clamp_min(1e-6)[:, None]) @ K[:2, :2].T + K[:2, 2]
+            pixel, depth = project_with_depth(means, camera)
             col, row = pixel[:, 0].floor().long(), pixel[:, 1].floor().long()
             visible = (depth > 1e-6) & (col >= 0) & (col < width) & (row >= 0) & (row < height)
             col, row = col.clamp(0, width - 1), row.clamp(0, height - 1)

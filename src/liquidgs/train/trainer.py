@@ -7,11 +7,12 @@ backward, densification statistics / densify / prune / opacity reset, Adam steps
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 import resource
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -449,15 +450,13 @@ class Trainer:
         if self.cfg.split.occlusion is None:
             return where_they_stand(self.params["means"].detach())
         field = self.field if moved and self.field_active(step) else None
+        moving = self.moving()
 
         @torch.no_grad()
         def seen(index: int) -> Seen:
             frame = self.dataset.train[index]
-            self.field.eval()
-            try:
-                gaussians = deform(self.params, field, frame.time, moving=self.moving())
-            finally:
-                self.field.train()
+            with self._field_evaluating():
+                gaussians = deform(self.params, field, frame.time, moving=moving)
             if self.cameras is not None:
                 gaussians = self.cameras.seen_by(gaussians, index, frame.camera, step)
             out = render_frame(gaussians, frame.camera, sh_degree=0, background=self.background,
@@ -472,16 +471,22 @@ class Trainer:
         p = self.params
         sizes = torch.exp(p["scales"][indices])
         largest = sizes.new_zeros(indices.shape[0])
-        self.field.eval()
-        try:
+        with self._field_evaluating():
             for time in self.split.sample_times():
                 g = deform(p, self.field, time, moving=indices)
                 moved = surface_move(p["means"][indices], p["quats"][indices], g.means[indices], g.quats[indices],
                                      sizes)  # fmt: skip
                 largest = torch.maximum(largest, moved)
+        return largest
+
+    @contextlib.contextmanager
+    def _field_evaluating(self) -> Iterator[None]:
+        """The field in evaluation mode (no training noise) for the block, then training again."""
+        self.field.eval()
+        try:
+            yield
         finally:
             self.field.train()
-        return largest
 
     def _flow_draw(self, gaussians, index: int, frame, use_field: bool, step: int, moving: torch.Tensor | None):
         """The Gaussians' screen motion from this step's frame to one of its neighbours, rendered with
@@ -637,8 +642,7 @@ class Trainer:
 
     @torch.no_grad()
     def evaluate(self) -> tuple[dict, list[dict]]:
-        self.field.eval()
-        try:
+        with self._field_evaluating():
             return evaluate_views(
                 self.render_fn,
                 self.dataset.test,
@@ -647,8 +651,6 @@ class Trainer:
                 quantize=self.cfg.eval.quantize_8bit,
                 background=self.background,
             )
-        finally:
-            self.field.train()
 
     def evaluate_aligned(self) -> dict:
         """The test split scored with each test view aligned to the frozen scene (its pose, its exposure,
@@ -660,12 +662,9 @@ class Trainer:
                                                    background=self.background, backend=self.cfg.backend).rgb,
             self.cfg.cameras, self.dataset.camera_extent, self.cfg.ssim_weight, self.alignment,
         )  # fmt: skip
-        self.field.eval()
-        try:
+        with self._field_evaluating():
             summary, _ = evaluate_views(render, self.dataset.test, lpips=self.lpips, lpips_error=self.lpips_error,
                                         quantize=self.cfg.eval.quantize_8bit)  # fmt: skip
-        finally:
-            self.field.train()
         return {"iteration": self.cfg.iterations, **summary, "cameras": self.alignment.protocol(self.cfg.cameras)}
 
     def evaluate_and_record(self, step: int) -> None:
