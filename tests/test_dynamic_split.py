@@ -147,8 +147,11 @@ def test_the_field_never_moves_a_static_gaussian_and_sees_only_the_dynamic_ones(
 
 
 @pytest.mark.slow
-def test_a_split_run_resumes_bit_exactly_labels_included(flow_capture, tmp_path, monkeypatch):
-    flags = ["--data", str(flow_capture), "--field", "mlp", *SPLIT_RUN]
+@pytest.mark.parametrize("occlusion", [[], ["--split.occlusion", "0.2"]], ids=["centres", "occlusion-test"])
+def test_a_split_run_resumes_bit_exactly_labels_included(flow_capture, tmp_path, monkeypatch, occlusion):
+    """Cut at step 17 (after the warm-up's decision at 5; labels decided again at 10, 15, ...), resumed:
+    the same labels and Gaussians as the run trained whole, with the vote's rendered depths too."""
+    flags = ["--data", str(flow_capture), "--field", "mlp", *SPLIT_RUN, *occlusion]
     run_train([*flags, "--out", str(tmp_path / "whole")])
     interrupt_at(17, [*flags, "--out", str(tmp_path / "cut")], monkeypatch)
     run_train([*flags, "--out", str(tmp_path / "cut"), "--resume"])
