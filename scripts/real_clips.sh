@@ -13,7 +13,9 @@
 #    weight at 0 (into DIR/experiment-without-regularisers); then with the motion evidence (the flow
 #    loss and the static/dynamic split: real-clips-motion.yml) and without each piece in turn
 #    (real-clips-motion-without-flow.yml, -without-split.yml), and with the tracks
-#    (real-clips-motion-with-tracks.yml), into DIR/experiment-<spec>;
+#    (real-clips-motion-with-tracks.yml), into DIR/experiment-<spec>; and the motion evidence as a
+#    capture's defaults give it (the flow loss at 0.04, the split, HexPlane without its neighbour terms:
+#    real-clips-defaults.yml, into DIR/experiment-defaults);
 # 4. masks of the moving subject on each test view, from the boxes drawn by eye in
 #    docs/experiments/real-clips-boxes.json, and `liquidgs eval --mask` of every finished run of a clip
 #    that has them (scores inside and outside, test cameras as given and aligned); the runs with and
@@ -56,7 +58,7 @@ done
 "${liquidgs[@]}" experiment run "$specs/real-clips.yml" --data-root "$out/scenes" --out "$out/experiment"
 "${liquidgs[@]}" experiment run "$specs/real-clips-without-regularisers.yml" --data-root "$out/scenes" \
     --out "$out/experiment-without-regularisers"
-for spec in motion motion-with-tracks motion-without-flow motion-without-split; do
+for spec in defaults motion motion-with-tracks motion-without-flow motion-without-split; do
     "${liquidgs[@]}" experiment run "$specs/real-clips-$spec.yml" --data-root "$out/scenes" --out "$out/experiment-$spec"
 done
 
@@ -73,7 +75,7 @@ done
 # The runs with the motion evidence and those without it, once each: scored inside the scene's own
 # motion masks, with the rendered motion's end-point error (kept as eval-auto.json), then inside the
 # boxes where the clip has them (eval.json, which the reports read).
-for run in "$out"/experiment/*/*/*/*/ "$out"/experiment-motion*/*/*/*/*/; do
+for run in "$out"/experiment/*/*/*/*/ "$out"/experiment-defaults/*/*/*/*/ "$out"/experiment-motion*/*/*/*/*/; do
     [ -f "$run/results.json" ] || continue
     rel=${run#"$out"/}
     rel=${rel%/}  # experiment-SPEC/DATASET/CLIP/FIELD/HASH
@@ -95,7 +97,7 @@ done
 "${python[@]}" "$root/docs/experiments/real_clips_mask_agreement.py" "$out/scenes" | tee "$out/mask-agreement.txt"
 "${liquidgs[@]}" experiment report "$out/experiment"
 "${liquidgs[@]}" experiment report "$out/experiment-without-regularisers"
-for spec in motion motion-with-tracks motion-without-flow motion-without-split; do
+for spec in defaults motion motion-with-tracks motion-without-flow motion-without-split; do
     "${liquidgs[@]}" experiment report "$out/experiment-$spec"
 done
 "${python[@]}" "$root/docs/experiments/real_clips_compare.py" "$out" | tee "$out/comparisons.md"

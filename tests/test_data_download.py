@@ -316,8 +316,8 @@ def test_the_rebuild_script_downloads_registers_each_clip_and_runs_the_spec(serv
     specs = script.parents[1] / "docs" / "experiments"
     scenes, masks = str(bench / "scenes"), str(bench / "masks" / "cat")
     experiment, without = str(bench / "experiment"), str(bench / "experiment-without-regularisers")
-    motion = ["motion", "motion-with-tracks", "motion-without-flow", "motion-without-split"]
-    assert calls[4:11] == [
+    motion = ["defaults", "motion", "motion-with-tracks", "motion-without-flow", "motion-without-split"]
+    assert calls[4:12] == [
         ["experiment", "run", str(specs / "real-clips.yml"), "--data-root", scenes, "--out", experiment],
         ["experiment", "run", str(specs / "real-clips-without-regularisers.yml"), "--data-root", scenes,
          "--out", without],
@@ -331,7 +331,7 @@ def test_the_rebuild_script_downloads_registers_each_clip_and_runs_the_spec(serv
                    for folder in ["experiment", *(f"experiment-{spec}" for spec in motion)]]  # fmt: skip
     scored = [["eval", "--run", str(r), "--mask", m, *(["--flow-error"] if m == "auto" else [])]
               for r in motion_runs for m in ("auto", masks)]  # fmt: skip
-    assert sorted(calls[11:21]) == sorted(scored)
+    assert sorted(calls[12:24]) == sorted(scored)
     for motion_run in motion_runs:
         assert calls.index(["eval", "--run", str(motion_run), "--mask", "auto", "--flow-error"]) < \
             calls.index(["eval", "--run", str(motion_run), "--mask", masks])  # fmt: skip
@@ -339,7 +339,7 @@ def test_the_rebuild_script_downloads_registers_each_clip_and_runs_the_spec(serv
         assert json.loads((motion_run / "eval.json").read_text())["masks"] == masks
         assert (motion_run / "eval-auto_per_view.json").is_file() and (motion_run / "eval_per_view.json").is_file()
     reports = [experiment, without, *(str(bench / f"experiment-{spec}") for spec in motion)]
-    assert calls[21:] == [["experiment", "report", folder] for folder in reports]
+    assert calls[24:] == [["experiment", "report", folder] for folder in reports]
     # The specs compared pair by pair: the stub's runs have no static model beside them.
     assert (bench / "comparisons.md").read_text().startswith("nothing to compare yet")
     # The masks: every test view of every moving clip, its box 255 inside at the view's size.
@@ -355,10 +355,10 @@ def test_the_rebuild_script_downloads_registers_each_clip_and_runs_the_spec(serv
     assert sorted(p.name for p in (bench / "scenes").iterdir()) == ["apple", "cat"]
     again = subprocess.run(["bash", str(script), str(bench)], env=env, capture_output=True, text=True)
     assert again.returncode == 0, again.stderr
-    calls_again = [json.loads(line) for line in (tmp_path / "liquidgs_stub.py.calls").read_text().splitlines()][27:]
+    calls_again = [json.loads(line) for line in (tmp_path / "liquidgs_stub.py.calls").read_text().splitlines()][31:]
     # The runs with and without the motion evidence, scored both ways, are not scored again.
-    assert [call[:2] for call in calls_again] == [["data", "video"]] + [["experiment", "run"]] * 6 + \
-        [["eval", "--run"]] + [["experiment", "report"]] * 6  # fmt: skip
+    assert [call[:2] for call in calls_again] == [["data", "video"]] + [["experiment", "run"]] * 7 + \
+        [["eval", "--run"]] + [["experiment", "report"]] * 7  # fmt: skip
     assert calls_again[0][2] == str(bench / "clips" / "refused.mp4")  # the refused clip is tried again
 
 
@@ -429,6 +429,26 @@ def test_the_benchmark_with_the_motion_evidence_differs_from_the_benchmark_only_
         assert runs.keys() == wanted and motion.name == name, name
         for key, overrides in runs.items():
             assert overrides == {**base[key], **evidence}, (name, key)
+
+
+def test_the_benchmark_at_the_defaults_differs_from_the_benchmark_only_in_the_defaults_evidence():
+    """docs/experiments/real-clips-defaults.yml: real-clips.yml's runs with the motion evidence a capture
+    with flow gets by default, written out: the flow loss at its default weight, the split, and HexPlane
+    (the built-in field with neighbour terms) without them, as the split decided from the scene sets them."""
+    from liquidgs.train.flow_loss import DEFAULT_WEIGHT
+    from liquidgs.train.motion_reg import MotionRegConfig, split_in_place_of_neighbour_terms
+
+    folder = Path(__file__).parents[1] / "docs" / "experiments"
+    base = {(g.scenes, f, tuple(g.seeds)): g.overrides for g in load_spec(str(folder / "real-clips.yml")).grids
+            for f in g.fields}  # fmt: skip
+    spec = load_spec(str(folder / "real-clips-defaults.yml"))
+    runs = {(g.scenes, v.field, tuple(g.seeds)): {**g.overrides, **v.overrides} for g in spec.grids for v in g.variants}
+    assert runs.keys() == base.keys() and spec.name == "real-clips-defaults"
+    for key, overrides in runs.items():
+        terms = split_in_place_of_neighbour_terms(MotionRegConfig(), key[1])
+        dropped = {f"motion.{name}": 0 for name in ("rigidity", "isometry") if getattr(terms, name) == 0.0}
+        assert bool(dropped) == (key[1] == "hexplane"), key
+        assert overrides == {**base[key], "flow.weight": DEFAULT_WEIGHT, "split.apply": True, **dropped}, key
 
 
 def test_the_benchmark_without_regularisers_differs_from_the_benchmark_only_in_them():

@@ -7,7 +7,8 @@ test views aligned: the run's eval.json), and the paired differences of those ma
 specs over every (clip, seed) both hold, with the project's verdict rule
 (liquidgs.experiments.report.significance: Student's t over the pairs, a verdict from 6 pairs on):
 
-- the motion evidence against none: experiment-motion against experiment (real-clips.yml);
+- the motion evidence against none: experiment-motion (the flow loss at 0.02, the split) and
+  experiment-defaults (the evidence as the defaults give it) against experiment (real-clips.yml);
 - everything against each piece off: the flow loss (experiment-motion-without-flow, whose static
   model is experiment's: the specs' own comments say which) and the static/dynamic split
   (experiment-motion-without-split, whose static model is experiment-motion's);
@@ -38,6 +39,7 @@ OWN_STATIC = {"experiment-motion-without-flow": "experiment", "experiment-motion
 """The ablation specs train no static model of their own; their margins are over these specs' (the
 static model has nothing to split, and without the flow loss it is real-clips.yml's)."""
 COMPARISONS = (
+    ("the motion evidence at the defaults against none", "experiment-defaults", "experiment"),
     ("the motion evidence against none", "experiment-motion", "experiment"),
     ("with the flow loss against without it", "experiment-motion", "experiment-motion-without-flow"),
     ("with the split against without it", "experiment-motion", "experiment-motion-without-split"),
@@ -46,6 +48,7 @@ COMPARISONS = (
     ("the flow loss alone against neither piece", "experiment-motion-without-split", "experiment"),
 )
 EPE_COMPARISONS = (
+    ("the motion evidence at the defaults against none", "experiment-defaults", "experiment"),
     ("the flow loss on against off", "experiment-motion", "experiment-motion-without-flow"),
     ("the motion evidence against none", "experiment-motion", "experiment"),
     ("the flow loss alone against neither piece", "experiment-motion-without-split", "experiment"),
