@@ -28,7 +28,7 @@ from liquidgs.data import DataConfig, check_dataset, load_dataset
 from liquidgs.data.capture import CaptureSettings, capture_scene
 from liquidgs.data.colmap import SolveOptions
 from liquidgs.data.optical_flow import chain_flow
-from liquidgs.data.pose_accuracy import scene_poses, score_poses, similarity
+from liquidgs.data.pose_accuracy import scene_poses, score_poses, score_scenes, similarity
 from liquidgs.data.synthetic import render_rgba
 from liquidgs.data.video import extract_video_frames
 from liquidgs.media import write_video
@@ -80,7 +80,7 @@ def video_scene(pycolmap, handheld, tmp_path_factory):
 def old_pipeline_scene(pycolmap, handheld, tmp_path_factory):
     """The same video through the pipeline as it was: the incremental mapper, features everywhere."""
     out = tmp_path_factory.mktemp("scenes") / "old"
-    return register_handheld(handheld, out, "--mapper", "incremental", "--no-flow")
+    return register_handheld(handheld, out, "--mapper", "incremental", "--no-flow", "--keyframe-every", "1")
 
 
 @pytest.fixture(scope="module")
@@ -159,11 +159,17 @@ def test_every_frame_is_registered_and_the_stages_report_counts(video_scene):
     assert capture["camera_solve"]["attempt"] == "global mapper" and len(capture["camera_solve"]["attempts"]) == 1
     assert "camera solve: attempt 1 of 4 (global mapper) succeeded" in stdout
     assert capture["camera_solve"]["warnings"] == [] and "warning" not in stdout
-    logged = ("extraction:", "features:", "matching (sequential):", "mapping (global):", "writing:")
+    # COLMAP solves every second frame and the last (17 of 32: every third would leave fewer than 16); the 15
+    # between are placed, none left out.
+    keyframes = capture["camera_solve"]["keyframes"]
+    assert keyframes["every"] == 2 and keyframes["keyframes"] == 17 and keyframes["placed"] == FRAMES - 17
+    assert keyframes["unplaced"] == [] and keyframes["fewest_inliers"] >= 30
+    assert " in 17 frames from" in stdout
+    logged = ("extraction:", "features:", "matching (sequential):", "mapping (global):", "placing:", "writing:")
     for stage in logged:
         assert stage in stdout, stdout
     # Every stage timed, wall and CPU, in the log and in capture.json.
-    stages = ["extraction", "features", "matching", "mapping", "undistortion", "writing", "flow"]
+    stages = ["extraction", "features", "matching", "mapping", "placing", "undistortion", "writing", "flow"]
     assert list(capture["seconds"]) == list(capture["cpu_seconds"]) == stages
     assert all(value >= 0 for value in [*capture["seconds"].values(), *capture["cpu_seconds"].values()])
     assert capture["cpu_seconds"]["features"] > 0 and capture["seconds"]["mapping"] > 0
@@ -342,7 +348,8 @@ def test_every_attempt_stops_at_its_deadline_and_says_so(pycolmap, handheld, old
     out = tmp_path / "scene"
     code, stdout, stderr = run_cli(
         ["data", "video", str(handheld.path), "--out", str(out), "--frames", str(FRAMES), "--max-size", "200",
-         "--threads", "1", "--mapper", "incremental", "--no-flow", "--no-mask-moving", "--deadline", "1"]
+         "--threads", "1", "--mapper", "incremental", "--no-flow", "--no-mask-moving", "--deadline", "1",
+         "--keyframe-every", "1"]
     )  # fmt: skip
     assert code == 2 and not out.exists()
     stopped = [line for line in stdout.splitlines() if line.startswith("mapping (incremental):")]
@@ -353,6 +360,29 @@ def test_every_attempt_stops_at_its_deadline_and_says_so(pycolmap, handheld, old
     # Refused for the deadline whether what it had registered passed the other checks or not.
     assert "stopped at the deadline of 1 s" in stderr and "--deadline SECONDS gives it longer" in stderr
     assert len(stderr.strip().splitlines()) == 1, stderr
+
+
+def test_frames_the_keyframes_cannot_place_send_colmap_to_every_frame(pycolmap, handheld, video_scene, tmp_path,
+                                                                     monkeypatch):  # fmt: skip
+    """With no frame between keyframes allowed to stay unplaced and placing made to fail, COLMAP solves every
+    frame, reusing the keyframes' features: every frame registered, the keyframes' attempt recorded first."""
+    import liquidgs.data.colmap as colmap
+
+    monkeypatch.setattr(colmap, "MAX_UNPLACED_SHARE", 0.0)
+    monkeypatch.setattr("liquidgs.data.keyframes.MIN_INLIERS", 10**6)  # no frame rests on enough points
+    out, stdout = register_handheld(handheld, tmp_path / "scene", "--no-flow")
+    capture = json.loads((out / "capture.json").read_text())
+    assert "placing: 15 of the 15 frames between keyframes could not be placed" in stdout, stdout
+    assert "next: COLMAP solves every frame" in stdout
+    assert capture["frames_registered"] == FRAMES and capture["camera_solve"]["keyframes"] is None
+    attempts = capture["camera_solve"]["attempts"]
+    assert [a.get("frames") for a in attempts] == ["keyframes", None] and attempts[1]["result"] == "used"
+    # The keyframes' 17 frames kept their features: only the other 15 were extracted again.
+    assert " in 32 frames from" in stdout and stdout.count("features: ") == 2
+    assert capture["cpu_seconds"]["placing"] >= 0 and "every-frame" not in str(list(out.iterdir()))
+    # The same cameras as a solve of every frame from the start, to COLMAP's run-to-run spread.
+    whole, _ = register_handheld(handheld, tmp_path / "whole", "--no-flow", "--keyframe-every", "1")
+    assert score_scenes(out, whole).relative_rotation_mean_deg < 0.05
 
 
 def test_extraction_samples_frames_and_applies_a_phone_rotation(handheld, tmp_path):
@@ -485,7 +515,11 @@ def test_the_scene_has_flow_and_motion_masks_that_find_the_ball(video_scene, han
         forward = [link["forward"].astype(np.float32) for link in links]
         chained, kept = chain_flow(forward, [link["forward_consistent"] for link in links])
         error = np.abs(track["forward"] - chained).max(axis=-1)  # the links are read back as float16
-        assert np.percentile(error[kept], 99) < 0.05 and (track["forward_consistent"] <= kept).all()
+        assert np.percentile(error[kept], 99) < 0.05
+        # Consistent only where every link was: the track was chained from the links in float32, these are read
+        # back in float16, so a chain's end may fall on the other side of a link mask's edge (measured: 1 pixel
+        # of 29,008).
+        assert (track["forward_consistent"] & ~kept).mean() < 1e-3
         assert 0.5 < track["forward_consistent"].mean() <= kept.mean() and track["backward_consistent"].mean() > 0.5
     pairs = ball_masks(out, handheld)
     still = np.mean([(mask & ~truth).mean() for mask, truth in pairs])

@@ -195,7 +195,8 @@ def _build(
 
     summary = _write_scene(scene, frames, frames_dir, solved.model, settings, log, times)
     summary.matcher = solved.matcher
-    summary.camera_solve = {"attempt": solved.attempt, "attempts": solved.attempts, "warnings": solved.warnings}
+    summary.camera_solve = {"attempt": solved.attempt, "attempts": solved.attempts, "warnings": solved.warnings,
+                            "keyframes": solved.keyframes}
     with times.stage("writing"):
         shutil.rmtree(work)
     summary.source = str(source)

@@ -22,6 +22,7 @@ sides divisible by a given multiple (the coarsest rgb/<k>x folder).
 from __future__ import annotations
 
 import copy
+import shutil
 import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
@@ -32,6 +33,7 @@ from typing import TYPE_CHECKING, Literal
 import numpy as np
 
 from liquidgs.data.flow_matches import VERIFY_MAX_ERROR, colmap_features, flow_guided_matches
+from liquidgs.data.keyframes import KEYFRAME_EVERY, MAX_UNPLACED_SHARE, keyframe_names, keyframe_step, place_between
 from liquidgs.data.optical_flow import import_cv2
 from liquidgs.data.plausibility import MIN_POINTS_PER_FRAME, lens_warnings, model_warnings
 from liquidgs.data.stage_times import StageTimes
@@ -105,6 +107,8 @@ class SolveOptions:
     """CPU threads for COLMAP; -1 uses every core."""
     deadline: int = DEADLINE_SECONDS
     """Seconds each attempt's mapping may take."""
+    keyframe_every: int = KEYFRAME_EVERY
+    """COLMAP solves every this-th frame and the frames between are placed (data.keyframes); 1: every frame."""
     fast_features: bool = False
     """SIFT from the frames as they are (first_octave 0), not from COLMAP's doubled first octave. Measured on
     New Tsukuba (150 frames, 640x480, global mapper): features, matching and mapping took 35.8 s of CPU
@@ -180,6 +184,8 @@ class Solved:
     """Seconds of features, matching and mapping (summed over attempts)."""
     warnings: list[str]
     """data.plausibility's warnings about the model used."""
+    keyframes: dict | None = None
+    """What data.keyframes did (keyframes, frames placed and not), or None: COLMAP solved every frame."""
 
 
 @contextmanager
@@ -201,11 +207,65 @@ def solve_cameras(
     log: Log,
     mask_dir: Path | None = None,
 ) -> Solved:
+    """The cameras of `image_names` (in time order): COLMAP solves the keyframes (data.keyframes) and the
+    frames between them are placed; when the keyframes give no usable model (but depth), or too many frames
+    between them cannot be placed, COLMAP solves every frame (the keyframes' features and matches reused).
+
+    mask_dir holds COLMAP masks (<name>.png, features on zero pixels are dropped) or is None. Refuses with
+    one SolveError when no attempt on every frame gives a usable model (see _solve).
+    """
+    step = keyframe_step(len(image_names), options.keyframe_every)
+    if step == 1:
+        return _solve(frames_dir, image_names, work_dir, options, log, mask_dir)
+    keys = keyframe_names(image_names, step)
+    log(f"keyframes: COLMAP solves one frame in {step} of the {len(image_names)} and the last "
+        f"({len(keys)}); the frames between them are placed from the points they see")  # fmt: skip
+    try:
+        solved = _solve(frames_dir, keys, work_dir, options, log, mask_dir)
+    except NoDepthError:
+        raise  # a camera turning in place: more frames of it add no depth
+    except SolveError as error:
+        log(f"keyframes refused: {error}; next: COLMAP solves every frame")
+        return _every_frame(frames_dir, image_names, work_dir, options, log, mask_dir, StageTimes(), [])
+    pycolmap = import_pycolmap()
+    with solved.times.stage("placing"):
+        placed = place_between(pycolmap, solved.model, frames_dir, image_names, log)
+    between = len(image_names) - len(keys)
+    if len(placed.unplaced) > MAX_UNPLACED_SHARE * between:
+        log(f"placing: {len(placed.unplaced)} of the {between} frames between keyframes could not be placed (at most "
+            f"{MAX_UNPLACED_SHARE:.0%}); next: COLMAP solves every frame")  # fmt: skip
+        return _every_frame(frames_dir, image_names, work_dir, options, log, mask_dir, solved.times, solved.attempts)
+    solved.warnings = model_warnings(solved.model)
+    solved.keyframes = placed.record(step, len(keys))
+    return solved
+
+
+def _every_frame(frames_dir: Path, image_names: list[str], work_dir: Path, options: SolveOptions, log: Log,
+                 mask_dir: Path | None, times: StageTimes, attempts: list[dict]) -> Solved:  # fmt: skip
+    """_solve on every frame, in a folder of its own with a copy of the keyframes' database (their features and
+    matches are not computed again); the keyframes' stage times and attempts come first in the result's."""
+    work = work_dir / "every-frame"
+    work.mkdir()
+    if (work_dir / "database.db").is_file():
+        shutil.copyfile(work_dir / "database.db", work / "database.db")
+    solved = _solve(frames_dir, image_names, work, options, log, mask_dir)
+    times.merge(solved.times)
+    solved.times, solved.attempts = times, [{**record, "frames": "keyframes"} for record in attempts] + solved.attempts
+    return solved
+
+
+def _solve(
+    frames_dir: Path,
+    image_names: list[str],
+    work_dir: Path,
+    options: SolveOptions,
+    log: Log,
+    mask_dir: Path | None = None,
+) -> Solved:
     """Features, then the attempts of solve_attempts (matching, mapping, check_model) until one gives
     a usable model; the largest model of that attempt.
 
-    mask_dir holds COLMAP masks (<name>.png, features on zero pixels are dropped) or is None; the
-    features, so the masks, are the same for every attempt. Refuses with one SolveError when no
+    The features, so the masks, are the same for every attempt. Refuses with one SolveError when no
     attempt gives a usable model: a camera turning in place when any attempt saw one, else the
     last attempt's reason.
     """

@@ -1,7 +1,9 @@
 """Optical flow between two frames and what is built from it alone: OpenCV's DIS flow, each
-direction's forward-backward consistency, and flow chained over several frames. liquidgs' one owner
-of optical flow: the scene folder's flow (data.flow), the motion masks (data.motion_masks), the
-features COLMAP is kept from (data.capture) and the matches it is given (data.flow_matches) all come from here.
+direction's forward-backward consistency, flow chained over several frames, and points tracked from
+one frame into another (Lucas-Kanade). liquidgs' one owner of optical flow: the scene folder's flow
+(data.flow), the motion masks (data.motion_masks), the features COLMAP is kept from (data.capture), the
+matches it is given (data.flow_matches) and the frames placed between keyframes (data.keyframes) all
+come from here.
 """
 
 from __future__ import annotations
@@ -77,3 +79,31 @@ def chain_flow(flows: list[np.ndarray], valid: list[np.ndarray]) -> tuple[np.nda
         x, y = x + step[..., 0], y + step[..., 1]
     kept &= inside(x, y, width, height)
     return np.stack([x - gx, y - gy], axis=-1), kept
+
+
+TRACK_WINDOW = 21
+"""Pyramidal Lucas-Kanade's window (pixels) and pyramid levels below the image: OpenCV's defaults but
+one more level, for the few-frame gaps tracked between keyframes (data.keyframes)."""
+TRACK_LEVELS = 3
+TRACK_BACK_ERROR = 0.5
+"""A point tracked into the other image and back must land within this many pixels of where it started."""
+
+
+def track_points(a: np.ndarray, b: np.ndarray, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Points xy [N, 2] of grey image a (uint8 [H, W], pixel centres at integers) tracked into grey image b
+    by pyramidal Lucas-Kanade: their positions in b, float64 [N, 2], and bool [N]: tracked both ways, back
+    within TRACK_BACK_ERROR pixels of the start, and inside b."""
+    cv2 = import_cv2()
+    start = np.ascontiguousarray(xy, dtype=np.float32).reshape(-1, 1, 2)
+    if not len(start):
+        return np.zeros((0, 2)), np.zeros(0, dtype=bool)
+    window = dict(winSize=(TRACK_WINDOW, TRACK_WINDOW), maxLevel=TRACK_LEVELS,
+                  criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01))  # fmt: skip
+    there, found, _ = cv2.calcOpticalFlowPyrLK(a, b, start, None, **window)
+    back, found_back, _ = cv2.calcOpticalFlowPyrLK(b, a, there, None, **window)
+    there, back = there.reshape(-1, 2).astype(np.float64), back.reshape(-1, 2)
+    height, width = b.shape[:2]
+    kept = (found[:, 0] == 1) & (found_back[:, 0] == 1) & np.isfinite(there).all(1)
+    kept &= np.linalg.norm(back - start.reshape(-1, 2), axis=1) < TRACK_BACK_ERROR
+    kept &= inside(there[:, 0], there[:, 1], width, height)
+    return there, kept
