@@ -97,6 +97,9 @@ def import_pycolmap():
 class SolveError(LiquidGSError):
     """COLMAP found no usable model; the message says what to try."""
 
+    attempts: list[dict] = []
+    """The attempts made before the refusal (Solved.attempts' records), where known."""
+
 
 @dataclass
 class SolveOptions:
@@ -226,7 +229,8 @@ def solve_cameras(
         raise  # a camera turning in place: more frames of it add no depth
     except SolveError as error:
         log(f"keyframes refused: {error}; next: COLMAP solves every frame")
-        return _every_frame(frames_dir, image_names, work_dir, options, log, mask_dir, StageTimes(), [])
+        return _every_frame(frames_dir, image_names, work_dir, options, log, mask_dir, StageTimes(),
+                            getattr(error, "attempts", []))  # fmt: skip
     pycolmap = import_pycolmap()
     with solved.times.stage("placing"):
         placed = place_between(pycolmap, solved.model, frames_dir, image_names, log)
@@ -254,14 +258,8 @@ def _every_frame(frames_dir: Path, image_names: list[str], work_dir: Path, optio
     return solved
 
 
-def _solve(
-    frames_dir: Path,
-    image_names: list[str],
-    work_dir: Path,
-    options: SolveOptions,
-    log: Log,
-    mask_dir: Path | None = None,
-) -> Solved:
+def _solve(frames_dir: Path, image_names: list[str], work_dir: Path, options: SolveOptions, log: Log,
+           mask_dir: Path | None) -> Solved:  # fmt: skip
     """Features, then the attempts of solve_attempts (matching, mapping, check_model) until one gives
     a usable model; the largest model of that attempt.
 
@@ -358,7 +356,9 @@ def _solve(
     cause = next((failure for failure in failures if isinstance(failure, NoDepthError)), failures[-1])
     tried = ", ".join(record["name"] for record in records)
     _refuse_cut(database_path, image_names, f" [COLMAP tried: {tried}]")
-    raise type(cause)(f"{cause} [COLMAP tried: {tried}]")
+    refusal = type(cause)(f"{cause} [COLMAP tried: {tried}]")
+    refusal.attempts = records
+    raise refusal
 
 
 def _refuse_cut(database_path: Path, image_names: list[str], suffix: str) -> None:
