@@ -106,6 +106,8 @@ def place_between(pycolmap, model, frames_dir: Path, names: list[str], log: Log)
         sources = sorted(anchors[max(at - 1, 0) : at + 1], key=lambda i: abs(i - index))
         points: dict[int, np.ndarray] = {}
         frame = read(name)
+        for kept_name in [key for key in gray if key not in {names[i] for i in sources}]:
+            del gray[kept_name]  # frames are visited in order: only the keyframes either side are needed again
         for source in sources:
             xy, ids = seen[names[source]]
             # COLMAP's pixel centres are at +0.5, OpenCV's at 0.
