@@ -193,3 +193,16 @@ def test_an_sde_run_without_lambda_made_under_identity_2_keeps_its_folder(dnerf_
     assert run_folder(cfg, tmp_path / "runs") == tmp_path / "runs" / config_hash(cfg)
     (tmp_path / "runs" / _v2_hash(cfg)).mkdir(parents=True)
     assert run_folder(cfg, tmp_path / "runs") == tmp_path / "runs" / _v2_hash(cfg)
+
+
+def test_a_time_resolution_per_level_is_in_a_hexplane_runs_identity_only_when_set():
+    """Unset (every run made before it), no field's identity holds it, so their run folders keep their names."""
+    args = ["--data", "scene", "--preset", "tiny", "--field", "hexplane"]
+    default, _ = resolve_config(args)
+    levels, _ = resolve_config([*args, "--field-options.level-time-resolutions", "20", "40"])
+    assert "level_time_resolutions" not in identity(default)["field_options"]
+    assert identity(levels)["field_options"]["level_time_resolutions"] == [20, 40]
+    assert config_hash(levels) != config_hash(default)
+    for field in ("mlp", "cfc", "static"):
+        cfg, _ = resolve_config(["--data", "scene", "--preset", "tiny", "--field", field])
+        assert "level_time_resolutions" not in identity(cfg)["field_options"]

@@ -168,3 +168,35 @@ def test_a_bad_grid_lr_scale_is_one_line(puppet_scene, tmp_path, capsys, field, 
     assert cli(["train", *field_args(puppet_scene, field, out, "--field-options.grid-lr-scale", value)]) == 2
     assert one_line_error(capsys) == f"liquidgs train: error: {message}"
     assert not out.exists()
+
+
+def test_hexplane_takes_a_time_resolution_per_level_from_the_command_line_and_the_run_config(puppet_scene, tmp_path):
+    out = tmp_path / "run"
+    cfg, _ = resolve_config(field_args(puppet_scene, "hexplane", out, "--field-options.level-time-resolutions", "20",
+                                       "40"))  # fmt: skip
+    assert cfg.field_options.level_time_resolutions == (20, 40)
+    field = build_field(cfg.field_config())
+    assert [tuple(level.time.shape[2:]) for level in field.levels] == [(20, 32), (40, 64)]  # tiny: 32 x (1, 2)
+    save_yaml(cfg, tmp_path / "config.yml")
+    assert load_yaml(tmp_path / "config.yml").field_options.level_time_resolutions == (20, 40)
+    default, _ = resolve_config(field_args(puppet_scene, "hexplane", out))
+    assert [level.time.shape[2] for level in build_field(default.field_config()).levels] == [40, 40]
+    # It trains, and resumes from its checkpoint with the planes it was built with.
+    results = run_train(field_args(puppet_scene, "hexplane", out, "--field-options.level-time-resolutions", "20", "40"))
+    assert results.final["iteration"] > 0
+
+
+@pytest.mark.parametrize(
+    ("field", "values", "message"),
+    [
+        ("hexplane", ["20"], "hexplane: level_time_resolutions needs one value per level (2), got 1"),
+        ("hexplane", ["20", "2"], "hexplane: level_time_resolutions must be an integer >= 3, got 2"),
+        ("mlp", ["20", "40"], "level_time_resolutions applies to the 'hexplane' field only, not to 'mlp'"),
+    ],
+)
+def test_a_bad_time_resolution_per_level_is_one_line(puppet_scene, tmp_path, capsys, field, values, message):
+    out = tmp_path / "run"
+    flags = ["--field-options.level-time-resolutions", *values]
+    assert cli(["train", *field_args(puppet_scene, field, out, *flags)]) == 2
+    assert one_line_error(capsys) == f"liquidgs train: error: {message}"
+    assert not out.exists()

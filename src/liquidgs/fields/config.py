@@ -40,7 +40,7 @@ SIZE_BOUNDS = {
 """(lowest, highest) of each size of the built-in fields: a field's cost grows with each, and the
 highest is 10-32x the largest preset's (fields/presets.py), room for any study on one GPU."""
 
-FIELD_ONLY_OPTIONS = {"grid_lr_scale": "hexplane"}
+FIELD_ONLY_OPTIONS = {"grid_lr_scale": "hexplane", "level_time_resolutions": "hexplane"}
 """FieldOptions that one field alone reads (by its name): refused for every other field, and left
 out of the other fields' config identities (so theirs stay those of the runs made before)."""
 
@@ -136,6 +136,9 @@ class FieldOptions:
     grid_lr_scale: float | None = None
     """The 'hexplane' grid's learning rate as a multiple of the field learning rate, which its
     decoder trains at (None: the preset's, 10, 4DGaussians' ratio)."""
+    level_time_resolutions: tuple[int, ...] = ()
+    """The 'hexplane' grid's nodes along time, one value per level (none: the preset's time resolution at
+    every level, as 4DGaussians)."""
 
 
 @dataclass
@@ -217,7 +220,7 @@ class FieldConfig(FieldOptions):
                 f"noise, lambda_schedule and adaptive_lambda apply to the 'sde' field only, not to '{self.name}'"
             )
         for key, owner in FIELD_ONLY_OPTIONS.items():
-            if getattr(self, key) is not None and self.name != owner:
+            if getattr(self, key) not in (None, ()) and self.name != owner:
                 raise ConfigError(f"{key} applies to the '{owner}' field only, not to '{self.name}'")
         if self.grid_lr_scale is not None:
             check_number("field: grid_lr_scale", self.grid_lr_scale, positive=True)

@@ -85,6 +85,9 @@ class HexPlaneConfig:
     rate. 10 in every preset: 4DGaussians' arguments/__init__.py trains the grid at grid_lr_init
     1.6e-3 -> grid_lr_final 1.6e-4 and the decoder at deformation_lr_init 1.6e-4 -> 1.6e-5
     (arguments/dnerf/dnerf_default.py: 1.6e-3 -> 1.6e-5 against 1.6e-4 -> 1.6e-6), 10x at every step."""
+    level_time_resolutions: tuple[int, ...] | None = None
+    """Nodes along time of each level, in place of time_resolution at every level (beyond 4DGaussians,
+    whose levels share one): a coarse time on one level and a finer one on the next. None in every preset."""
 
     def __post_init__(self) -> None:
         for key, (lowest, highest) in SIZE_BOUNDS.items():
@@ -102,6 +105,18 @@ class HexPlaneConfig:
             check_number(f"hexplane: {key}", getattr(self, key))
         check_number("hexplane: grid_lr_scale", self.grid_lr_scale, positive=True)
         object.__setattr__(self, "multires", tuple(self.multires))
+        if self.level_time_resolutions is not None:
+            times = tuple(self.level_time_resolutions)
+            if len(times) != len(self.multires):
+                raise ConfigError(f"hexplane: level_time_resolutions needs one value per level ({len(self.multires)}), "
+                                  f"got {len(times)}")  # fmt: skip
+            for time_resolution in times:
+                check_integer("hexplane: level_time_resolutions", time_resolution, *SIZE_BOUNDS["time_resolution"])
+            object.__setattr__(self, "level_time_resolutions", times)
+
+    def time_resolutions(self) -> tuple[int, ...]:
+        """The nodes along time of each level."""
+        return self.level_time_resolutions or (self.time_resolution,) * len(self.multires)
 
     @classmethod
     def preset(cls, name: str, **overrides) -> HexPlaneConfig:
@@ -203,7 +218,8 @@ class HexPlaneField(DeformationField):
         cfg = self.config
         self.register_buffer("aabb", torch.tensor([[-DEFAULT_BOUNDS] * 3, [DEFAULT_BOUNDS] * 3]))
         self.levels = nn.ModuleList(
-            HexPlaneLevel(cfg.resolution * m, cfg.time_resolution, cfg.features) for m in cfg.multires
+            HexPlaneLevel(cfg.resolution * m, time_resolution, cfg.features)
+            for m, time_resolution in zip(cfg.multires, cfg.time_resolutions(), strict=True)
         )
         self.feature_out = nn.Linear(cfg.features * len(cfg.multires), cfg.width)
         self.hidden_xyz = nn.Linear(cfg.width, cfg.width)
@@ -280,9 +296,10 @@ class HexPlaneField(DeformationField):
 
 
 def build(config: FieldConfig) -> HexPlaneField:
-    """The field of a run's config: sized by its preset; of the --field-options only grid_lr_scale
-    applies (None: the preset's)."""
-    overrides = {} if config.grid_lr_scale is None else {"grid_lr_scale": config.grid_lr_scale}
+    """The field of a run's config: sized by its preset; of the --field-options only grid_lr_scale and
+    level_time_resolutions apply (None: the preset's)."""
+    overrides = {key: getattr(config, key) for key in ("grid_lr_scale", "level_time_resolutions")
+                 if getattr(config, key) not in (None, ())}  # fmt: skip
     return HexPlaneField(HexPlaneConfig.preset(config.preset, **overrides))
 
 

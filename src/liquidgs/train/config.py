@@ -459,6 +459,11 @@ _IDENTITY_MARKER = 2
 """The version the hashed dict carries: version 3 changed no layout, only how settings are written."""
 
 
+_ABSENT_WHEN_UNSET = {"level_time_resolutions"}
+"""Field-only options added after grid_lr_scale, left out of the owner's identity too while unset: unset is
+what every run made before them had (grid_lr_scale is held even at None: see identity_v2)."""
+
+
 def identity_v2(cfg: TrainConfig) -> dict:
     """What a run computes from, as version 2 wrote it. A setting added later must not change the
     identity of runs made without it: leave it out at the value those runs had (and test that)."""
@@ -474,7 +479,7 @@ def identity_v2(cfg: TrainConfig) -> dict:
     # that reads one holds it even at None (its preset's value), so that its runs made before the
     # option existed (hexplane: the grid at the decoder's learning rate) are not taken for new ones.
     for key, owner in FIELD_ONLY_OPTIONS.items():
-        if cfg.field != owner:
+        if cfg.field != owner or (key in _ABSENT_WHEN_UNSET and not d["field_options"][key]):
             del d["field_options"][key]
     # Camera refinement, added after version 2: a run that does not refine (every run made before
     # it) has no `cameras` in its identity; one that does holds them with `refine` resolved.
