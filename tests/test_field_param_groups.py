@@ -181,9 +181,11 @@ def test_hexplane_takes_a_time_resolution_per_level_from_the_command_line_and_th
     assert load_yaml(tmp_path / "config.yml").field_options.level_time_resolutions == (20, 40)
     default, _ = resolve_config(field_args(puppet_scene, "hexplane", out))
     assert [level.time.shape[2] for level in build_field(default.field_config()).levels] == [40, 40]
-    # It trains, and resumes from its checkpoint with the planes it was built with.
+    # It trains, and its checkpoint holds the planes it was built with.
     results = run_train(field_args(puppet_scene, "hexplane", out, "--field-options.level-time-resolutions", "20", "40"))
     assert results.final["iteration"] > 0
+    state = torch.load(out / "checkpoint.pt", weights_only=True)["field"]
+    assert [tuple(state[f"levels.{i}.time"].shape[2:]) for i in (0, 1)] == [(20, 32), (40, 64)]
 
 
 @pytest.mark.parametrize(

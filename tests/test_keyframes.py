@@ -106,7 +106,7 @@ def test_the_frames_between_keyframes_are_placed_where_they_were_filmed(tmp_path
     lines = []
     placed = place_between(pycolmap, model, tmp_path, names, lines.append)
     assert placed.placed == [names[i] for i in (1, 2, 5)] and placed.unplaced == [names[4]]
-    assert placed.inliers_min >= 30 and "3 frames between keyframes placed" in lines[0] and names[4] in lines[0]
+    assert placed.fewest_inliers >= 30 and "3 frames between keyframes placed" in lines[0] and names[4] in lines[0]
     by_name = {image.name: image for image in model.images.values()}
     assert sorted(by_name) == sorted(names[:4] + names[5:])
     for index in (1, 2, 5):

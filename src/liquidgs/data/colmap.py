@@ -34,7 +34,7 @@ import numpy as np
 
 from liquidgs.data.flow_matches import VERIFY_MAX_ERROR, colmap_features, flow_guided_matches
 from liquidgs.data.keyframes import KEYFRAME_EVERY, MAX_UNPLACED_SHARE, keyframe_names, keyframe_step, place_between
-from liquidgs.data.optical_flow import import_cv2
+from liquidgs.data.optical_flow import read_gray
 from liquidgs.data.plausibility import MIN_POINTS_PER_FRAME, lens_warnings, model_warnings
 from liquidgs.data.stage_times import StageTimes
 from liquidgs.errors import LiquidGSError
@@ -97,7 +97,7 @@ def import_pycolmap():
 class SolveError(LiquidGSError):
     """COLMAP found no usable model; the message says what to try."""
 
-    attempts: list[dict] = []
+    attempts: Sequence[dict] = ()
     """The attempts made before the refusal (Solved.attempts' records), where known."""
 
 
@@ -229,8 +229,7 @@ def solve_cameras(
         raise  # a camera turning in place: more frames of it add no depth
     except SolveError as error:
         log(f"keyframes refused: {error}; next: COLMAP solves every frame")
-        return _every_frame(frames_dir, image_names, work_dir, options, log, mask_dir, StageTimes(),
-                            getattr(error, "attempts", []))  # fmt: skip
+        return _every_frame(frames_dir, image_names, work_dir, options, log, mask_dir, StageTimes(), error.attempts)
     pycolmap = import_pycolmap()
     with solved.times.stage("placing"):
         placed = place_between(pycolmap, solved.model, frames_dir, image_names, log)
@@ -245,7 +244,7 @@ def solve_cameras(
 
 
 def _every_frame(frames_dir: Path, image_names: list[str], work_dir: Path, options: SolveOptions, log: Log,
-                 mask_dir: Path | None, times: StageTimes, attempts: list[dict]) -> Solved:  # fmt: skip
+                 mask_dir: Path | None, times: StageTimes, attempts: Sequence[dict]) -> Solved:  # fmt: skip
     """_solve on every frame, in a folder of its own with a copy of the keyframes' database (their features and
     matches are not computed again); the keyframes' stage times and attempts come first in the result's."""
     work = work_dir / "every-frame"
@@ -558,12 +557,11 @@ def _match_along_flow(pycolmap, database_path: Path, frames_dir: Path, image_nam
 
 
 def _read_gray(path: Path) -> np.ndarray:
-    """A frame as grey uint8 [H, W], decoded by OpenCV (its grey rounds differently from PIL's "L")."""
-    cv2 = import_cv2()
-    gray = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-    if gray is None:
-        raise SolveError(f"{path}: not an image OpenCV can read")
-    return gray
+    """optical_flow.read_gray, its refusal a SolveError: the attempt fails, the next is tried."""
+    try:
+        return read_gray(path)
+    except LiquidGSError as error:
+        raise SolveError(str(error)) from None
 
 
 def _map(pycolmap, database_path: Path, frames_dir: Path, sparse_dir: Path, attempt: Attempt, total: int,

@@ -24,9 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
-from liquidgs.data.optical_flow import import_cv2, track_points
+from liquidgs.data.optical_flow import read_gray, track_points
 from liquidgs.data.plausibility import MIN_POINTS_PER_FRAME
-from liquidgs.errors import LiquidGSError
 
 KEYFRAME_EVERY = 3
 """COLMAP solves every this-th frame (and the last); 1 solves every frame with COLMAP."""
@@ -65,32 +64,24 @@ class Placed:
     placed: list[str]
     unplaced: list[str]
     """Frames with too few tracked points or no pose: left out of the model."""
-    inliers_min: int
+    fewest_inliers: int
     """The fewest inlier points any placed frame rests on (0 when none was placed)."""
     seconds: float
 
     def record(self, every: int, keyframes: int) -> dict:
         """capture.json's record."""
         return {"every": every, "keyframes": keyframes, "placed": len(self.placed), "unplaced": self.unplaced,
-                "fewest_inliers": self.inliers_min, "seconds": round(self.seconds, 2)}  # fmt: skip
+                "fewest_inliers": self.fewest_inliers, "seconds": round(self.seconds, 2)}  # fmt: skip
 
 
 def place_between(pycolmap, model, frames_dir: Path, names: list[str], log: Log) -> Placed:
     """Add to `model` (COLMAP's, one shared camera, frames named `names` in time order) every frame of `names`
     it does not hold, each placed from the nearest registered frames before and after it."""
     started = time.perf_counter()
-    cv2 = import_cv2()
     by_name = {image.name: image for image in model.images.values() if image.has_pose}
     anchors = [i for i, name in enumerate(names) if name in by_name]
     seen = {name: _observations(model, by_name[name]) for name in by_name}
-    gray: dict[str, np.ndarray] = {}
-
-    def read(name: str) -> np.ndarray:
-        if name not in gray:
-            gray[name] = cv2.imread(str(frames_dir / name), cv2.IMREAD_GRAYSCALE)
-            if gray[name] is None:
-                raise LiquidGSError(f"{frames_dir / name}: not an image OpenCV can read")
-        return gray[name]
+    keyframes_read: dict[str, np.ndarray] = {}  # only those either side of the frame being placed
 
     camera = model.cameras[next(iter(by_name.values())).camera_id]
     estimation = pycolmap.AbsolutePoseEstimationOptions()
@@ -104,14 +95,15 @@ def place_between(pycolmap, model, frames_dir: Path, names: list[str], log: Log)
         at = bisect.bisect(anchors, index)
         # The nearer keyframe first: a point both see is taken from it.
         sources = sorted(anchors[max(at - 1, 0) : at + 1], key=lambda i: abs(i - index))
+        keyframes_read = {names[i]: keyframes_read.get(names[i]) for i in sources}  # frames are visited in order
         points: dict[int, np.ndarray] = {}
-        frame = read(name)
-        for kept_name in [key for key in gray if key not in {names[i] for i in sources}]:
-            del gray[kept_name]  # frames are visited in order: only the keyframes either side are needed again
+        frame = read_gray(frames_dir / name)
         for source in sources:
             xy, ids = seen[names[source]]
+            if keyframes_read[names[source]] is None:
+                keyframes_read[names[source]] = read_gray(frames_dir / names[source])
             # COLMAP's pixel centres are at +0.5, OpenCV's at 0.
-            there, kept = track_points(read(names[source]), frame, xy - 0.5)
+            there, kept = track_points(keyframes_read[names[source]], frame, xy - 0.5)
             for point_id, position in zip(ids[kept], there[kept] + 0.5):
                 points.setdefault(int(point_id), position)
         pose = None
@@ -134,7 +126,7 @@ def place_between(pycolmap, model, frames_dir: Path, names: list[str], log: Log)
     result = Placed(placed, unplaced, fewest or 0, time.perf_counter() - started)
     missing = f"; {len(unplaced)} could not be: {', '.join(unplaced[:8])}" if unplaced else ""
     log(f"placing: {len(placed)} frames between keyframes placed from the points they see (each on at least "
-        f"{result.inliers_min} points, {result.seconds:.1f} s){missing}")  # fmt: skip
+        f"{result.fewest_inliers} points, {result.seconds:.1f} s){missing}")  # fmt: skip
     return result
 
 

@@ -28,6 +28,16 @@ def import_cv2():
     return cv2
 
 
+def read_gray(path) -> np.ndarray:
+    """A frame as grey uint8 [H, W], decoded by OpenCV (its grey rounds differently from PIL's "L"), or one
+    error naming the file."""
+    cv2 = import_cv2()
+    gray = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    if gray is None:
+        raise LiquidGSError(f"{path}: not an image OpenCV can read")
+    return gray
+
+
 def optical_flow(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """DIS flow from image a to image b (uint8 RGB [H, W, 3] or grey [H, W]): float32 [H, W, 2], (dx, dy)
     in pixels."""

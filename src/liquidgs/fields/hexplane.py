@@ -85,9 +85,9 @@ class HexPlaneConfig:
     rate. 10 in every preset: 4DGaussians' arguments/__init__.py trains the grid at grid_lr_init
     1.6e-3 -> grid_lr_final 1.6e-4 and the decoder at deformation_lr_init 1.6e-4 -> 1.6e-5
     (arguments/dnerf/dnerf_default.py: 1.6e-3 -> 1.6e-5 against 1.6e-4 -> 1.6e-6), 10x at every step."""
-    level_time_resolutions: tuple[int, ...] | None = None
+    level_time_resolutions: tuple[int, ...] = ()
     """Nodes along time of each level, in place of time_resolution at every level (beyond 4DGaussians,
-    whose levels share one): a coarse time on one level and a finer one on the next. None in every preset."""
+    whose levels share one): a coarse time on one level and a finer one on the next. Unset in every preset."""
 
     def __post_init__(self) -> None:
         for key, (lowest, highest) in SIZE_BOUNDS.items():
@@ -105,7 +105,7 @@ class HexPlaneConfig:
             check_number(f"hexplane: {key}", getattr(self, key))
         check_number("hexplane: grid_lr_scale", self.grid_lr_scale, positive=True)
         object.__setattr__(self, "multires", tuple(self.multires))
-        if self.level_time_resolutions is not None:
+        if self.level_time_resolutions:
             times = tuple(self.level_time_resolutions)
             if len(times) != len(self.multires):
                 raise ConfigError(f"hexplane: level_time_resolutions needs one value per level ({len(self.multires)}), "
@@ -297,7 +297,7 @@ class HexPlaneField(DeformationField):
 
 def build(config: FieldConfig) -> HexPlaneField:
     """The field of a run's config: sized by its preset; of the --field-options only grid_lr_scale and
-    level_time_resolutions apply (None: the preset's)."""
+    level_time_resolutions apply (unset: the preset's)."""
     overrides = {key: getattr(config, key) for key in ("grid_lr_scale", "level_time_resolutions")
                  if getattr(config, key) not in (None, ())}  # fmt: skip
     return HexPlaneField(HexPlaneConfig.preset(config.preset, **overrides))
