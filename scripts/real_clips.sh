@@ -15,7 +15,8 @@
 #    (real-clips-motion-without-flow.yml, -without-split.yml), and with the tracks
 #    (real-clips-motion-with-tracks.yml), into DIR/experiment-<spec>; and the motion evidence as a
 #    capture's defaults give it (the flow loss at 0.04, the split, HexPlane without its neighbour terms:
-#    real-clips-defaults.yml, into DIR/experiment-defaults);
+#    real-clips-defaults.yml, into DIR/experiment-defaults), and the same with the quick look's schedule
+#    doubled to 3,000 iterations (real-clips-defaults-3000.yml, into DIR/experiment-defaults-3000);
 # 4. masks of the moving subject on each test view, from the boxes drawn by eye in
 #    docs/experiments/real-clips-boxes.json, and `liquidgs eval --mask` of every finished run of a clip
 #    that has them (scores inside and outside, test cameras as given and aligned); the runs with and
@@ -24,7 +25,8 @@
 #    them again;
 # 5. how the scenes' own motion masks (data flow) agree with the boxes (DIR/mask-agreement.txt);
 # 6. the reports, and the specs compared pair by pair with the verdict rule (the evidence against
-#    none, each piece off in turn, the tracks: docs/experiments/real_clips_compare.py, into
+#    none, each piece off in turn, the tracks, the schedules; each spec's margins over the static model:
+#    docs/experiments/real_clips_compare.py, into
 #    DIR/comparisons.md). Steps already done (a folder that exists) are skipped, so a stopped rebuild resumes.
 # LIQUIDGS (default: liquidgs) is the command to run, e.g. "python -m liquidgs.cli"; PYTHON (default:
 # python3) one with liquidgs' dependencies, for the masks.
@@ -58,7 +60,7 @@ done
 "${liquidgs[@]}" experiment run "$specs/real-clips.yml" --data-root "$out/scenes" --out "$out/experiment"
 "${liquidgs[@]}" experiment run "$specs/real-clips-without-regularisers.yml" --data-root "$out/scenes" \
     --out "$out/experiment-without-regularisers"
-for spec in defaults motion motion-with-tracks motion-without-flow motion-without-split; do
+for spec in defaults defaults-3000 motion motion-with-tracks motion-without-flow motion-without-split; do
     "${liquidgs[@]}" experiment run "$specs/real-clips-$spec.yml" --data-root "$out/scenes" --out "$out/experiment-$spec"
 done
 
@@ -75,7 +77,7 @@ done
 # The runs with the motion evidence and those without it, once each: scored inside the scene's own
 # motion masks, with the rendered motion's end-point error (kept as eval-auto.json), then inside the
 # boxes where the clip has them (eval.json, which the reports read).
-for run in "$out"/experiment/*/*/*/*/ "$out"/experiment-defaults/*/*/*/*/ "$out"/experiment-motion*/*/*/*/*/; do
+for run in "$out"/experiment/*/*/*/*/ "$out"/experiment-defaults*/*/*/*/*/ "$out"/experiment-motion*/*/*/*/*/; do
     [ -f "$run/results.json" ] || continue
     rel=${run#"$out"/}
     rel=${rel%/}  # experiment-SPEC/DATASET/CLIP/FIELD/HASH
@@ -97,7 +99,7 @@ done
 "${python[@]}" "$root/docs/experiments/real_clips_mask_agreement.py" "$out/scenes" | tee "$out/mask-agreement.txt"
 "${liquidgs[@]}" experiment report "$out/experiment"
 "${liquidgs[@]}" experiment report "$out/experiment-without-regularisers"
-for spec in defaults motion motion-with-tracks motion-without-flow motion-without-split; do
+for spec in defaults defaults-3000 motion motion-with-tracks motion-without-flow motion-without-split; do
     "${liquidgs[@]}" experiment report "$out/experiment-$spec"
 done
 "${python[@]}" "$root/docs/experiments/real_clips_compare.py" "$out" | tee "$out/comparisons.md"

@@ -451,6 +451,31 @@ def test_the_benchmark_at_the_defaults_differs_from_the_benchmark_only_in_the_de
         assert overrides == {**base[key], "flow.weight": DEFAULT_WEIGHT, "split.apply": True, **dropped}, key
 
 
+def test_the_benchmark_at_3000_iterations_differs_from_the_defaults_spec_only_in_the_schedule():
+    """docs/experiments/real-clips-defaults-3000.yml: real-clips-defaults.yml's runs with the quick look's
+    schedule doubled - the learning rates decaying over 3,000 steps, densification stopping at twice the
+    quick look's step, still no opacity reset within the run - and one evaluation, at the end."""
+    from liquidgs.train.config import preset_config
+
+    folder = Path(__file__).parents[1] / "docs" / "experiments"
+
+    def runs(name):
+        spec = load_spec(str(folder / f"{name}.yml"))
+        return spec, {(g.scenes, v.field, tuple(g.seeds)): {**g.overrides, **v.overrides}
+                      for g in spec.grids for v in g.variants}  # fmt: skip
+
+    _, quick = runs("real-clips-defaults")
+    spec, longer = runs("real-clips-defaults-3000")
+    tiny = preset_config("tiny", Path("."))
+    schedule = {"iterations": 2 * tiny.iterations, "optim.means_lr_steps": 2 * tiny.iterations,
+                "optim.field_lr_steps": 2 * tiny.iterations, "densify.stop": 2 * tiny.densify.stop,
+                "densify.opacity_reset_interval": 6000, "eval.start": 2 * tiny.iterations}  # fmt: skip
+    assert longer.keys() == quick.keys() and spec.name == "real-clips-defaults-3000"
+    for key, overrides in longer.items():
+        assert overrides == {**quick[key], **schedule}, key
+        assert schedule["densify.opacity_reset_interval"] > schedule["iterations"]
+
+
 def test_the_benchmark_without_regularisers_differs_from_the_benchmark_only_in_them():
     """docs/experiments/real-clips-without-regularisers.yml: seed 0 of the same runs of the fields that
     deform, with every motion weight at 0 and nothing else changed, where by default each field has one

@@ -25,14 +25,14 @@ def load_script():
 
 
 def write_run(root: Path, spec: str, clip: str, field: str, seed: int, subject: float | None, epe: float | None = None,
-              aligned: float = 25.0) -> None:  # fmt: skip
+              aligned: float = 25.0, iterations: int = ITERATIONS) -> None:  # fmt: skip
     run = root / spec / "real-clips" / clip / field / f"{field}{seed}{spec[-4:]}"
     run.mkdir(parents=True)
     (run / "checkpoint.pt").write_bytes(f"{spec} {clip} {field} {seed}".encode())
-    results = {"seed": seed, "iterations": ITERATIONS, "final_aligned": {"psnr": aligned}}
+    results = {"seed": seed, "iterations": iterations, "final_aligned": {"psnr": aligned}}
     (run / "results.json").write_text(json.dumps(results))
-    evaluated = {"iteration": ITERATIONS, "finished": True,
-                 "source": source_record(run, "0123456789", ITERATIONS, run / "checkpoint.pt")}  # fmt: skip
+    evaluated = {"iteration": iterations, "finished": True,
+                 "source": source_record(run, "0123456789", iterations, run / "checkpoint.pt")}  # fmt: skip
     if subject is not None:
         (run / "eval.json").write_text(json.dumps({**evaluated, "masked_aligned": {"inside": {"psnr": subject}}}))
     if epe is not None:
@@ -84,6 +84,28 @@ def test_end_point_error_change_and_still_clip_margins(runs_folder):
         "| hexplane | 10 | -50% |"
     )
     assert "| experiment | apple | 0 | mlp | +0.25 |" in text
+
+
+def test_each_specs_margins_and_the_doubled_schedule_against_the_quick_look(tmp_path):
+    """Each spec's own subject margins (the bars are on them), and the 3,000-iteration spec's against
+    the quick look's pair by pair: the quick look's fields 3 dB over a static model at 20 dB, the
+    doubled schedule's 4 dB (+-0.1 by seed) over one at 21 dB."""
+    for clip in MOVING:
+        for seed in (0, 1):
+            write_run(tmp_path, "experiment-defaults", clip, "static", seed, 20.0)
+            write_run(tmp_path, "experiment-defaults-3000", clip, "static", seed, 21.0, iterations=3000)
+            for field in ("mlp", "cfc", "hexplane"):
+                write_run(tmp_path, "experiment-defaults", clip, field, seed, 23.0)
+                write_run(tmp_path, "experiment-defaults-3000", clip, field, seed, 25.0 + (0.1 if seed else -0.1),
+                          iterations=3000)  # fmt: skip
+    text = load_script().report(tmp_path)
+    margins = text.split("## Subject margin over the static model, each spec")[1].split("##")[0]
+    assert "| experiment-defaults | cfc | 10 | +3.00 |" in margins
+    row = next(line for line in margins.splitlines() if line.startswith("| experiment-defaults-3000 | hexplane |"))
+    assert row.startswith("| experiment-defaults-3000 | hexplane | 10 | +4.00 | +3.9") and "cat s1 +4.10" in row, row
+    longer = text.split("## Subject margin, 3,000 iterations against the quick look's 1,500")[1].split("##")[0]
+    row = next(line for line in longer.splitlines() if line.startswith("| mlp |"))
+    assert row.startswith("| mlp | 10 | +1.00 |") and "| helps |" in row, row
 
 
 def test_two_finished_runs_of_one_clip_field_and_seed_are_refused(runs_folder):
