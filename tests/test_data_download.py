@@ -316,8 +316,9 @@ def test_the_rebuild_script_downloads_registers_each_clip_and_runs_the_spec(serv
     specs = script.parents[1] / "docs" / "experiments"
     scenes, masks = str(bench / "scenes"), str(bench / "masks" / "cat")
     experiment, without = str(bench / "experiment"), str(bench / "experiment-without-regularisers")
-    motion = ["defaults", "motion", "motion-with-tracks", "motion-without-flow", "motion-without-split"]
-    assert calls[4:12] == [
+    motion = ["defaults", "defaults-3000", "motion", "motion-with-tracks", "motion-without-flow",
+              "motion-without-split"]  # fmt: skip
+    assert calls[4:13] == [
         ["experiment", "run", str(specs / "real-clips.yml"), "--data-root", scenes, "--out", experiment],
         ["experiment", "run", str(specs / "real-clips-without-regularisers.yml"), "--data-root", scenes,
          "--out", without],
@@ -331,7 +332,7 @@ def test_the_rebuild_script_downloads_registers_each_clip_and_runs_the_spec(serv
                    for folder in ["experiment", *(f"experiment-{spec}" for spec in motion)]]  # fmt: skip
     scored = [["eval", "--run", str(r), "--mask", m, *(["--flow-error"] if m == "auto" else [])]
               for r in motion_runs for m in ("auto", masks)]  # fmt: skip
-    assert sorted(calls[12:24]) == sorted(scored)
+    assert sorted(calls[13:27]) == sorted(scored)
     for motion_run in motion_runs:
         assert calls.index(["eval", "--run", str(motion_run), "--mask", "auto", "--flow-error"]) < \
             calls.index(["eval", "--run", str(motion_run), "--mask", masks])  # fmt: skip
@@ -339,7 +340,7 @@ def test_the_rebuild_script_downloads_registers_each_clip_and_runs_the_spec(serv
         assert json.loads((motion_run / "eval.json").read_text())["masks"] == masks
         assert (motion_run / "eval-auto_per_view.json").is_file() and (motion_run / "eval_per_view.json").is_file()
     reports = [experiment, without, *(str(bench / f"experiment-{spec}") for spec in motion)]
-    assert calls[24:] == [["experiment", "report", folder] for folder in reports]
+    assert calls[27:] == [["experiment", "report", folder] for folder in reports]
     # The specs compared pair by pair: the stub's runs have no static model beside them.
     assert (bench / "comparisons.md").read_text().startswith("nothing to compare yet")
     # The masks: every test view of every moving clip, its box 255 inside at the view's size.
@@ -355,10 +356,10 @@ def test_the_rebuild_script_downloads_registers_each_clip_and_runs_the_spec(serv
     assert sorted(p.name for p in (bench / "scenes").iterdir()) == ["apple", "cat"]
     again = subprocess.run(["bash", str(script), str(bench)], env=env, capture_output=True, text=True)
     assert again.returncode == 0, again.stderr
-    calls_again = [json.loads(line) for line in (tmp_path / "liquidgs_stub.py.calls").read_text().splitlines()][31:]
+    calls_again = [json.loads(line) for line in (tmp_path / "liquidgs_stub.py.calls").read_text().splitlines()][35:]
     # The runs with and without the motion evidence, scored both ways, are not scored again.
-    assert [call[:2] for call in calls_again] == [["data", "video"]] + [["experiment", "run"]] * 7 + \
-        [["eval", "--run"]] + [["experiment", "report"]] * 7  # fmt: skip
+    assert [call[:2] for call in calls_again] == [["data", "video"]] + [["experiment", "run"]] * 8 + \
+        [["eval", "--run"]] + [["experiment", "report"]] * 8  # fmt: skip
     assert calls_again[0][2] == str(bench / "clips" / "refused.mp4")  # the refused clip is tried again
 
 
