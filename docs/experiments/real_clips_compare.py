@@ -130,8 +130,8 @@ def margin_rows(specs: dict[str, Runs]) -> list[str]:
     for spec in sorted(specs):
         for field in FIELDS:
             values, shown = [], []
-            for clip, f, seed in sorted(specs[spec]):
-                value = margin(specs, spec, clip, field, seed, "subject") if f == field else None
+            for clip, seed in sorted((c, s) for c, f, s in specs[spec] if f == field):
+                value = margin(specs, spec, clip, field, seed, "subject")
                 if value is not None:
                     values.append(value)
                     shown.append(f"{clip} s{seed} {value:+.2f}")
