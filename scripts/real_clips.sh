@@ -16,7 +16,8 @@
 #    (real-clips-motion-with-tracks.yml), into DIR/experiment-<spec>; and the motion evidence as a
 #    capture's defaults give it (the flow loss at 0.04, the split, HexPlane without its neighbour terms:
 #    real-clips-defaults.yml, into DIR/experiment-defaults), and the same with the quick look's schedule
-#    doubled to 3,000 iterations (real-clips-defaults-3000.yml, into DIR/experiment-defaults-3000);
+#    doubled to 3,000 iterations (real-clips-defaults-3000.yml, into DIR/experiment-defaults-3000), and
+#    without the evidence at 3,000 (real-clips-3000.yml, into DIR/experiment-3000);
 # 4. masks of the moving subject on each test view, from the boxes drawn by eye in
 #    docs/experiments/real-clips-boxes.json, and `liquidgs eval --mask` of every finished run of a clip
 #    that has them (scores inside and outside, test cameras as given and aligned); the runs with and
@@ -60,7 +61,7 @@ done
 "${liquidgs[@]}" experiment run "$specs/real-clips.yml" --data-root "$out/scenes" --out "$out/experiment"
 "${liquidgs[@]}" experiment run "$specs/real-clips-without-regularisers.yml" --data-root "$out/scenes" \
     --out "$out/experiment-without-regularisers"
-for spec in defaults defaults-3000 motion motion-with-tracks motion-without-flow motion-without-split; do
+for spec in defaults defaults-3000 3000 motion motion-with-tracks motion-without-flow motion-without-split; do
     "${liquidgs[@]}" experiment run "$specs/real-clips-$spec.yml" --data-root "$out/scenes" --out "$out/experiment-$spec"
 done
 
@@ -77,7 +78,7 @@ done
 # The runs with the motion evidence and those without it, once each: scored inside the scene's own
 # motion masks, with the rendered motion's end-point error (kept as eval-auto.json), then inside the
 # boxes where the clip has them (eval.json, which the reports read).
-for run in "$out"/experiment/*/*/*/*/ "$out"/experiment-defaults*/*/*/*/*/ "$out"/experiment-motion*/*/*/*/*/; do
+for run in "$out"/experiment/*/*/*/*/ "$out"/experiment-3000/*/*/*/*/ "$out"/experiment-defaults*/*/*/*/*/ "$out"/experiment-motion*/*/*/*/*/; do
     [ -f "$run/results.json" ] || continue
     rel=${run#"$out"/}
     rel=${rel%/}  # experiment-SPEC/DATASET/CLIP/FIELD/HASH
@@ -99,7 +100,7 @@ done
 "${python[@]}" "$root/docs/experiments/real_clips_mask_agreement.py" "$out/scenes" | tee "$out/mask-agreement.txt"
 "${liquidgs[@]}" experiment report "$out/experiment"
 "${liquidgs[@]}" experiment report "$out/experiment-without-regularisers"
-for spec in defaults defaults-3000 motion motion-with-tracks motion-without-flow motion-without-split; do
+for spec in defaults defaults-3000 3000 motion motion-with-tracks motion-without-flow motion-without-split; do
     "${liquidgs[@]}" experiment report "$out/experiment-$spec"
 done
 "${python[@]}" "$root/docs/experiments/real_clips_compare.py" "$out" | tee "$out/comparisons.md"

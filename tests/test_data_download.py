@@ -316,9 +316,9 @@ def test_the_rebuild_script_downloads_registers_each_clip_and_runs_the_spec(serv
     specs = script.parents[1] / "docs" / "experiments"
     scenes, masks = str(bench / "scenes"), str(bench / "masks" / "cat")
     experiment, without = str(bench / "experiment"), str(bench / "experiment-without-regularisers")
-    motion = ["defaults", "defaults-3000", "motion", "motion-with-tracks", "motion-without-flow",
+    motion = ["defaults", "defaults-3000", "3000", "motion", "motion-with-tracks", "motion-without-flow",
               "motion-without-split"]  # fmt: skip
-    assert calls[4:13] == [
+    assert calls[4:14] == [
         ["experiment", "run", str(specs / "real-clips.yml"), "--data-root", scenes, "--out", experiment],
         ["experiment", "run", str(specs / "real-clips-without-regularisers.yml"), "--data-root", scenes,
          "--out", without],
@@ -332,7 +332,7 @@ def test_the_rebuild_script_downloads_registers_each_clip_and_runs_the_spec(serv
                    for folder in ["experiment", *(f"experiment-{spec}" for spec in motion)]]  # fmt: skip
     scored = [["eval", "--run", str(r), "--mask", m, *(["--flow-error"] if m == "auto" else [])]
               for r in motion_runs for m in ("auto", masks)]  # fmt: skip
-    assert sorted(calls[13:27]) == sorted(scored)
+    assert sorted(calls[14:30]) == sorted(scored)
     for motion_run in motion_runs:
         assert calls.index(["eval", "--run", str(motion_run), "--mask", "auto", "--flow-error"]) < \
             calls.index(["eval", "--run", str(motion_run), "--mask", masks])  # fmt: skip
@@ -340,7 +340,7 @@ def test_the_rebuild_script_downloads_registers_each_clip_and_runs_the_spec(serv
         assert json.loads((motion_run / "eval.json").read_text())["masks"] == masks
         assert (motion_run / "eval-auto_per_view.json").is_file() and (motion_run / "eval_per_view.json").is_file()
     reports = [experiment, without, *(str(bench / f"experiment-{spec}") for spec in motion)]
-    assert calls[27:] == [["experiment", "report", folder] for folder in reports]
+    assert calls[30:] == [["experiment", "report", folder] for folder in reports]
     # The specs compared pair by pair: the stub's runs have no static model beside them.
     assert (bench / "comparisons.md").read_text().startswith("nothing to compare yet")
     # The masks: every test view of every moving clip, its box 255 inside at the view's size.
@@ -356,10 +356,10 @@ def test_the_rebuild_script_downloads_registers_each_clip_and_runs_the_spec(serv
     assert sorted(p.name for p in (bench / "scenes").iterdir()) == ["apple", "cat"]
     again = subprocess.run(["bash", str(script), str(bench)], env=env, capture_output=True, text=True)
     assert again.returncode == 0, again.stderr
-    calls_again = [json.loads(line) for line in (tmp_path / "liquidgs_stub.py.calls").read_text().splitlines()][35:]
+    calls_again = [json.loads(line) for line in (tmp_path / "liquidgs_stub.py.calls").read_text().splitlines()][39:]
     # The runs with and without the motion evidence, scored both ways, are not scored again.
-    assert [call[:2] for call in calls_again] == [["data", "video"]] + [["experiment", "run"]] * 8 + \
-        [["eval", "--run"]] + [["experiment", "report"]] * 8  # fmt: skip
+    assert [call[:2] for call in calls_again] == [["data", "video"]] + [["experiment", "run"]] * 9 + \
+        [["eval", "--run"]] + [["experiment", "report"]] * 9  # fmt: skip
     assert calls_again[0][2] == str(bench / "clips" / "refused.mp4")  # the refused clip is tried again
 
 
@@ -452,10 +452,12 @@ def test_the_benchmark_at_the_defaults_differs_from_the_benchmark_only_in_the_de
         assert overrides == {**base[key], "flow.weight": DEFAULT_WEIGHT, "split.apply": True, **dropped}, key
 
 
-def test_the_benchmark_at_3000_iterations_differs_from_the_defaults_spec_only_in_the_schedule():
-    """docs/experiments/real-clips-defaults-3000.yml: real-clips-defaults.yml's runs with the quick look's
-    schedule doubled - the learning rates decaying over 3,000 steps, densification stopping at twice the
-    quick look's step, still no opacity reset within the run - and one evaluation, at the end."""
+@pytest.mark.parametrize("quick_name", ["real-clips", "real-clips-defaults"])
+def test_the_benchmark_at_3000_iterations_differs_from_its_quick_look_only_in_the_schedule(quick_name):
+    """docs/experiments/real-clips-3000.yml and real-clips-defaults-3000.yml: the runs of real-clips.yml
+    (no motion evidence) and real-clips-defaults.yml (the evidence) with the quick look's schedule
+    doubled - the learning rates decaying over 3,000 steps, densification stopping at twice the quick
+    look's step, still no opacity reset within the run - and one evaluation, at the end."""
     from liquidgs.train.config import preset_config
 
     folder = Path(__file__).parents[1] / "docs" / "experiments"
@@ -463,15 +465,15 @@ def test_the_benchmark_at_3000_iterations_differs_from_the_defaults_spec_only_in
     def runs(name):
         spec = load_spec(str(folder / f"{name}.yml"))
         return spec, {(g.scenes, v.field, tuple(g.seeds)): {**g.overrides, **v.overrides}
-                      for g in spec.grids for v in g.variants}  # fmt: skip
+                      for g in spec.grids for v in g.field_variants()}  # fmt: skip
 
-    _, quick = runs("real-clips-defaults")
-    spec, longer = runs("real-clips-defaults-3000")
+    _, quick = runs(quick_name)
+    spec, longer = runs(f"{quick_name}-3000")
     tiny = preset_config("tiny", Path("."))
     schedule = {"iterations": 2 * tiny.iterations, "optim.means_lr_steps": 2 * tiny.iterations,
                 "optim.field_lr_steps": 2 * tiny.iterations, "densify.stop": 2 * tiny.densify.stop,
                 "densify.opacity_reset_interval": 6000, "eval.start": 2 * tiny.iterations}  # fmt: skip
-    assert longer.keys() == quick.keys() and spec.name == "real-clips-defaults-3000"
+    assert longer.keys() == quick.keys() and spec.name == f"{quick_name}-3000"
     for key, overrides in longer.items():
         assert overrides == {**quick[key], **schedule}, key
         assert overrides["densify.opacity_reset_interval"] > overrides["iterations"]  # no reset within the run

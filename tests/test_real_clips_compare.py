@@ -88,16 +88,19 @@ def test_end_point_error_change_and_still_clip_margins(runs_folder):
 
 def test_each_specs_margins_and_the_doubled_schedule_against_the_quick_look(tmp_path):
     """Each spec's own subject margins (the bars are on them), and the 3,000-iteration spec's against
-    the quick look's pair by pair: the quick look's fields 3 dB over a static model at 20 dB, the
-    doubled schedule's 4 dB (+-0.1 by seed) over one at 21 dB."""
+    the quick look's pair by pair and against no motion evidence at 3,000: the quick look's fields 3 dB
+    over a static model at 20 dB, the doubled schedule's 4 dB (+-0.1 by seed) over one at 21 dB, and
+    without the evidence 2.5 dB over one at 20.5 dB, their end-point errors 3.0 px against 2.0."""
     for clip in MOVING:
         for seed in (0, 1):
             write_run(tmp_path, "experiment-defaults", clip, "static", seed, 20.0)
             write_run(tmp_path, "experiment-defaults-3000", clip, "static", seed, 21.0, iterations=3000)
+            write_run(tmp_path, "experiment-3000", clip, "static", seed, 20.5, iterations=3000)
             for field in ("mlp", "cfc", "hexplane"):
                 write_run(tmp_path, "experiment-defaults", clip, field, seed, 23.0)
                 write_run(tmp_path, "experiment-defaults-3000", clip, field, seed, 25.0 + (0.1 if seed else -0.1),
-                          iterations=3000)  # fmt: skip
+                          epe=2.0, iterations=3000)  # fmt: skip
+                write_run(tmp_path, "experiment-3000", clip, field, seed, 23.0, epe=3.0, iterations=3000)
     text = load_script().report(tmp_path)
     margins = text.split("## Subject margin over the static model, each spec")[1].split("##")[0]
     assert "| experiment-defaults | cfc | 10 | +3.00 |" in margins
@@ -106,6 +109,12 @@ def test_each_specs_margins_and_the_doubled_schedule_against_the_quick_look(tmp_
     longer = text.split("## Subject margin, 3,000 iterations against the quick look's 1,500")[1].split("##")[0]
     row = next(line for line in longer.splitlines() if line.startswith("| mlp |"))
     assert row.startswith("| mlp | 10 | +1.00 |") and "| helps |" in row, row
+    evidence = text.split("## Subject margin, the motion evidence at the defaults against none, at 3")[1]
+    row = next(line for line in evidence.split("##")[0].splitlines() if line.startswith("| cfc |"))
+    assert row.startswith("| cfc | 10 | +1.50 |") and "| helps |" in row and "cat s1 +2.50 -> +4.10" in row, row
+    epe = text.split("## End-point error in the motion masks, the motion evidence at the defaults against none, at")[1]
+    row = next(line for line in epe.splitlines() if line.startswith("| hexplane |"))
+    assert row.startswith("| hexplane | 10 | -33% |"), row
 
 
 def test_two_finished_runs_of_one_clip_field_and_seed_are_refused(runs_folder):

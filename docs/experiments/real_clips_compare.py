@@ -14,7 +14,8 @@ specs over every (clip, seed) both hold, with the project's verdict rule
   (experiment-motion-without-split, whose static model is experiment-motion's);
 - the tracks: experiment-motion-with-tracks against experiment-motion;
 - each piece alone against neither: an ablation spec against experiment;
-- the schedule: experiment-defaults-3000 (the quick look's schedule doubled) against experiment-defaults.
+- the schedule: experiment-defaults-3000 (the quick look's schedule doubled) against experiment-defaults,
+  and at that schedule the motion evidence against none (experiment-defaults-3000 against experiment-3000).
 
 Before them, each spec's own subject margins over its static model, field by field (the benchmark's
 bars are on these: every field +3.0 dB, the best +4.0).
@@ -51,9 +52,11 @@ COMPARISONS = (
     ("the split alone against neither piece", "experiment-motion-without-flow", "experiment"),
     ("the flow loss alone against neither piece", "experiment-motion-without-split", "experiment"),
     ("3,000 iterations against the quick look's 1,500", "experiment-defaults-3000", "experiment-defaults"),
+    ("the motion evidence at the defaults against none, at 3,000", "experiment-defaults-3000", "experiment-3000"),
 )
 EPE_COMPARISONS = (
     ("the motion evidence at the defaults against none", "experiment-defaults", "experiment"),
+    ("the motion evidence at the defaults against none, at 3,000", "experiment-defaults-3000", "experiment-3000"),
     ("the flow loss on against off", "experiment-motion", "experiment-motion-without-flow"),
     ("the motion evidence against none", "experiment-motion", "experiment"),
     ("the flow loss alone against neither piece", "experiment-motion-without-split", "experiment"),
