@@ -61,7 +61,9 @@ done
 "${liquidgs[@]}" experiment run "$specs/real-clips.yml" --data-root "$out/scenes" --out "$out/experiment"
 "${liquidgs[@]}" experiment run "$specs/real-clips-without-regularisers.yml" --data-root "$out/scenes" \
     --out "$out/experiment-without-regularisers"
-for spec in defaults defaults-3000 3000 motion motion-with-tracks motion-without-flow motion-without-split; do
+# The specs beside real-clips.yml that are run, scored in both kinds of mask and reported alike.
+paired_specs=(defaults defaults-3000 3000 motion motion-with-tracks motion-without-flow motion-without-split)
+for spec in "${paired_specs[@]}"; do
     "${liquidgs[@]}" experiment run "$specs/real-clips-$spec.yml" --data-root "$out/scenes" --out "$out/experiment-$spec"
 done
 
@@ -78,7 +80,11 @@ done
 # The runs with the motion evidence and those without it, once each: scored inside the scene's own
 # motion masks, with the rendered motion's end-point error (kept as eval-auto.json), then inside the
 # boxes where the clip has them (eval.json, which the reports read).
-for run in "$out"/experiment/*/*/*/*/ "$out"/experiment-3000/*/*/*/*/ "$out"/experiment-defaults*/*/*/*/*/ "$out"/experiment-motion*/*/*/*/*/; do
+scored_runs=("$out"/experiment/*/*/*/*/)
+for spec in "${paired_specs[@]}"; do
+    scored_runs+=("$out/experiment-$spec"/*/*/*/*/)
+done
+for run in "${scored_runs[@]}"; do
     [ -f "$run/results.json" ] || continue
     rel=${run#"$out"/}
     rel=${rel%/}  # experiment-SPEC/DATASET/CLIP/FIELD/HASH
@@ -100,7 +106,7 @@ done
 "${python[@]}" "$root/docs/experiments/real_clips_mask_agreement.py" "$out/scenes" | tee "$out/mask-agreement.txt"
 "${liquidgs[@]}" experiment report "$out/experiment"
 "${liquidgs[@]}" experiment report "$out/experiment-without-regularisers"
-for spec in defaults defaults-3000 3000 motion motion-with-tracks motion-without-flow motion-without-split; do
+for spec in "${paired_specs[@]}"; do
     "${liquidgs[@]}" experiment report "$out/experiment-$spec"
 done
 "${python[@]}" "$root/docs/experiments/real_clips_compare.py" "$out" | tee "$out/comparisons.md"
