@@ -9,7 +9,7 @@ from liquidgs.commands import progress
 from tiny_runs import run_cli, tiny_flags
 
 LINE = re.compile(
-    r"^train (\d+)/40  loss (nan|\d+\.\d{4})  PSNR (nan|\d+\.\d\d)  Gaussians [\d,]+  "
+    r"^train (\d+)/40  loss (-|\d+\.\d{4})  PSNR (-|\d+\.\d\d)  Gaussians [\d,]+  "
     r"elapsed \d+:\d\d:\d\d  ETA (-|\d+:\d\d:\d\d)$"
 )
 
@@ -23,6 +23,9 @@ def test_train_into_a_file_prints_plain_progress_lines_at_its_interval(puppet_sc
     lines = err.splitlines()
     steps = [int(m[1]) for m in map(LINE.match, lines) if m]
     assert steps == list(range(41)), lines[:5]  # the start, then every step (no bar redrawn)
+    shown = [m.group(2, 3) for m in map(LINE.match, lines) if m]
+    assert shown[0] == ("-", "-") and "-" not in {v for pair in shown[1:] for v in pair}  # nothing measured yet
+    assert not re.search(r"\bnan\b", err)  # a log that reads "loss nan" looks like a diverged run
     assert "\x1b[" not in err  # no terminal escapes in a log
     assert "evaluation at iteration 20 (2 test views)" in err
     assert "training done; the final evaluation of 2 test views starts" in err

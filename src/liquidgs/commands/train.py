@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import shlex
 from pathlib import Path
 
@@ -119,10 +120,13 @@ def resolve_config(argv: list[str]) -> tuple[TrainConfig, Path]:
 def make_progress(console: Console):
     """The training bar on a terminal; plain lines to a file or a pipe (commands.progress)."""
 
+    def shown(value: float, spec: str) -> str:  # "-" before the first step, not a "nan" that reads as a failure
+        return "-" if math.isnan(value) else format(value, spec)
+
     def line(task: dict) -> str:
         return (
-            f"{task['description']} {task['completed']}/{task['total']}  loss {task['loss']:.4f}  "
-            f"PSNR {task['psnr']:.2f}  Gaussians {task['gaussians']:,}"
+            f"{task['description']} {task['completed']}/{task['total']}  loss {shown(task['loss'], '.4f')}  "
+            f"PSNR {shown(task['psnr'], '.2f')}  Gaussians {task['gaussians']:,}"
         )
 
     counts = "{task.completed}/{task.total}"
