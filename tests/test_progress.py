@@ -21,9 +21,10 @@ def test_train_into_a_file_prints_plain_progress_lines_at_its_interval(puppet_sc
     )
     assert code == 0, err
     lines = err.splitlines()
-    steps = [int(m[1]) for m in map(LINE.match, lines) if m]
+    progress_lines = [m for m in map(LINE.match, lines) if m]
+    steps = [int(m[1]) for m in progress_lines]
     assert steps == list(range(41)), lines[:5]  # the start, then every step (no bar redrawn)
-    shown = [m.group(2, 3) for m in map(LINE.match, lines) if m]
+    shown = [m.group(2, 3) for m in progress_lines]
     assert shown[0] == ("-", "-") and "-" not in {v for pair in shown[1:] for v in pair}  # nothing measured yet
     assert not re.search(r"\bnan\b", err)  # a log that reads "loss nan" looks like a diverged run
     assert "\x1b[" not in err  # no terminal escapes in a log
